@@ -1,0 +1,1 @@
+"""Contextweb's application layer: the web service, its CLI and dashboard."""

@@ -1,0 +1,167 @@
+"""Loopy belief propagation kernels for the concept web (§III-B, Eq. 2).
+
+Flat layout, shared by every kernel:
+
+- ``cardinalities[v]``: number of states of variable ``v``; arrays over states are
+  padded to ``K = cardinalities.max()`` and padded entries are never read;
+- for an undirected edge ``e = (u, v)``, directed edge ``2e`` carries the message
+  ``u -> v`` and ``2e + 1`` the message ``v -> u``, so the reverse of directed edge
+  ``d`` is ``d ^ 1``; ``sources[d]`` and ``targets[d]`` are its two variables;
+- ``factors[factor_start[d] + a * cardinalities[targets[d]] + b]`` is the clique
+  factor ``exp(-beta * psi_K)`` for ``x_source = a, x_target = b`` (the edge's
+  table, transposed for ``2e + 1``), stored unpadded so that binary edges stay small;
+- ``incoming_start[v] : incoming_start[v + 1]`` slices ``incoming`` to the directed
+  edges that end in ``v`` (CSR).
+
+Messages are normalised probability vectors; a variable's product of incoming
+messages is rescaled whenever it gets tiny, so a variable with many neighbours
+cannot underflow. The schedule is synchronous (every message is computed from the previous
+iteration's messages), which makes the result independent of edge order.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+#: Products of incoming messages are rescaled when their largest entry falls below this.
+_RESCALE_BELOW = 1e-150
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _products(unary, cardinalities, incoming_start, incoming, messages, out):
+    """out[v] ∝ unary[v] × the incoming messages at v, rescaled so no product underflows."""
+    for v in range(cardinalities.shape[0]):
+        n = cardinalities[v]
+        for s in range(n):
+            out[v, s] = unary[v, s]
+        for k in range(incoming_start[v], incoming_start[v + 1]):
+            peak = 0.0
+            for s in range(n):
+                out[v, s] *= messages[incoming[k], s]
+                peak = max(peak, out[v, s])
+            if peak < _RESCALE_BELOW:
+                for s in range(n):
+                    out[v, s] /= peak
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def propagate(
+    unary: np.ndarray,
+    sends: np.ndarray,
+    graph: tuple,
+    max_product: bool,
+    damping: float,
+    tolerance: float,
+    max_iterations: int,
+    beliefs: np.ndarray,
+) -> tuple[int, bool]:
+    """Run sum-product (or max-product) LBP for one object; fill ``beliefs`` (n_var, K).
+
+    A message update is ``m_new = (1 - damping) * m_computed + damping * m_old``;
+    the run has converged when no message entry moved by ``tolerance`` or more in
+    one iteration. A variable with ``sends[v]`` false only receives: its messages
+    stay uniform, so it reads the web without feeding back into it. Returns
+    ``(iterations, converged)``; a graph without edges needs no iteration and its
+    beliefs are the normalised unaries. ``graph`` is ``(cardinalities, sources,
+    targets, factor_start, factors, incoming_start, incoming)``. Every factor is
+    strictly positive, so dividing a variable's product by one incoming message
+    is the product of the others.
+    """
+    cardinalities, sources, targets, factor_start, factors, incoming_start, incoming = graph
+    n_var = cardinalities.shape[0]
+    width = unary.shape[1]
+    n_directed = sources.shape[0]
+    messages = np.zeros((n_directed, width))
+    for d in range(n_directed):
+        for b in range(cardinalities[targets[d]]):
+            messages[d, b] = 1.0 / cardinalities[targets[d]]
+    updated = messages.copy()
+    product = np.zeros((n_var, width))
+    cavity = np.zeros(width)
+    computed = np.zeros(width)
+    iterations = 0
+    converged = n_directed == 0
+    while not converged and iterations < max_iterations:
+        iterations += 1
+        _products(unary, cardinalities, incoming_start, incoming, messages, product)
+        delta = 0.0
+        for d in range(n_directed):
+            source, n_target = sources[d], cardinalities[targets[d]]
+            if not sends[source]:
+                continue
+            n_source, start = cardinalities[source], factor_start[d]
+            if n_source == 2 and n_target == 2:
+                # Binary edge: the cavity (product without the reverse message) up to scale,
+                # p0 / m0 : p1 / m1 = p0 * m1 : p1 * m0, needs no division.
+                c0 = product[source, 0] * messages[d ^ 1, 1]
+                c1 = product[source, 1] * messages[d ^ 1, 0]
+                if max_product:
+                    v0 = max(c0 * factors[start], c1 * factors[start + 2])
+                    v1 = max(c0 * factors[start + 1], c1 * factors[start + 3])
+                else:
+                    v0 = c0 * factors[start] + c1 * factors[start + 2]
+                    v1 = c0 * factors[start + 1] + c1 * factors[start + 3]
+                scale = (1.0 - damping) / (v0 + v1)
+                m0 = scale * v0 + damping * messages[d, 0]
+                m1 = scale * v1 + damping * messages[d, 1]
+                delta = max(delta, abs(m0 - messages[d, 0]), abs(m1 - messages[d, 1]))
+                updated[d, 0] = m0
+                updated[d, 1] = m1
+                continue
+            for a in range(n_source):
+                cavity[a] = product[source, a] / messages[d ^ 1, a]
+            total = 0.0
+            for b in range(n_target):
+                value = 0.0
+                for a in range(n_source):
+                    term = cavity[a] * factors[start + a * n_target + b]
+                    if max_product:
+                        value = max(value, term)
+                    else:
+                        value += term
+                computed[b] = value
+                total += value
+            scale = (1.0 - damping) / total
+            for b in range(n_target):
+                fresh = scale * computed[b] + damping * messages[d, b]
+                change = abs(fresh - messages[d, b])
+                delta = max(delta, change)
+                updated[d, b] = fresh
+        messages, updated = updated, messages
+        converged = delta < tolerance
+    _products(unary, cardinalities, incoming_start, incoming, messages, product)
+    for v in range(n_var):
+        total = 0.0
+        for s in range(cardinalities[v]):
+            total += product[v, s]
+        for s in range(width):
+            beliefs[v, s] = product[v, s] / total if s < cardinalities[v] else 0.0
+    return iterations, converged
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def propagate_many(
+    unary: np.ndarray,
+    sends: np.ndarray,
+    graph: tuple,
+    damping: float,
+    tolerance: float,
+    max_iterations: int,
+    marginals: np.ndarray,
+    max_marginals: np.ndarray,
+    iterations: np.ndarray,
+    converged: np.ndarray,
+) -> None:
+    """Sum-product and max-product LBP for every object of ``unary`` (n_objects, n_var, K)
+    and ``sends`` (n_objects, n_var).
+
+    ``iterations`` and ``converged`` (n_objects, 2) hold the sum-product pass in
+    column 0 and the max-product pass in column 1.
+    """
+    for i in range(unary.shape[0]):
+        for column in range(2):
+            out = marginals[i] if column == 0 else max_marginals[i]
+            steps, done = propagate(unary[i], sends[i], graph, column == 1, damping, tolerance, max_iterations, out)
+            iterations[i, column] = steps
+            converged[i, column] = done

@@ -1,0 +1,426 @@
+"""The concept web: a Markov random field over concepts, settled by loopy BP (§III-B).
+
+Variables follow the vocabulary's structure (``docs/concept_web.md`` gives the
+reasons for every choice below):
+
+- one categorical *noun* variable whose states are the nouns (exactly one noun);
+- one binary variable per dichotomic adjective pair, state 0 = the first
+  adjective, state 1 = the second (exactly one of each pair);
+- one binary variable per verb, state 0 = inactive, state 1 = active.
+
+Every concept is one (variable, state): the paper's 29 concepts are 29
+variable-states over 19 variables. Two variables share an edge when any of their
+concepts co-occurred in training (the paper's ε_ij). The clique energy of Eq. 4
+on an edge (u, v) is
+
+    ψ_K(s, t) = [1 - P(x_u = s | x_v = t)] + [1 - P(x_v = t | x_u = s)],
+
+which is |val(x) - E(x | ·)| for a binary variable and half the L1 distance
+between a state's indicator vector and its conditional expectation for the
+noun variable. Conditionals come from co-occurrence counts plus ``pseudo_count``;
+the clique factor is ``exp(-β_e ψ_K)`` with ``β_e = β / mean degree of u and v``.
+The unary energy of Eq. 3 is ``ψ_C(c) = -log P(c)`` for the perception
+probability P(c), so the unary factor is P(c) clipped to
+``[probability_floor, 1 - probability_floor]``; a verb's inactive state gets
+``1 - P(verb)`` and a verb whose behaviour was not applied gets (1, 1).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from core.concept_web import _checks, _lbp_kernels
+from core.errors import InvalidInputError
+from core.vocabulary import Vocabulary
+
+#: β of exp(-β_e ψ_K): the value whose no-evidence marginals best match training frequencies.
+DEFAULT_BETA = 4.0
+#: Pseudo-count added to every joint state count (Jeffreys / Krichevsky–Trofimov estimate).
+DEFAULT_PSEUDO_COUNT = 0.5
+#: Perception probabilities are clipped to [floor, 1 - floor], so ψ_C = -log P(c) ≤ 6.9.
+DEFAULT_PROBABILITY_FLOOR = 1e-3
+
+_STATE_KEYS = ("concepts", "cooccurrence", "n_objects", "beta", "pseudo_count", "probability_floor")
+
+
+@dataclass(frozen=True)
+class WebInference:
+    """The settled concept web of one object.
+
+    ``probabilities[c]`` is the sum-product marginal P(c active), in
+    ``vocabulary.concepts`` order; ``map_configuration[c]`` says whether c is active
+    in the max-product configuration (per-variable argmax of the max-marginals,
+    so exactly one noun and one adjective per pair). ``iterations`` is the larger
+    of the two passes' iteration counts; ``converged`` is true when both converged.
+    """
+
+    probabilities: np.ndarray
+    map_configuration: np.ndarray
+    iterations: int
+    converged: bool
+
+
+@dataclass(frozen=True)
+class WebPotentials:
+    """A pairwise MRF as plain, strictly positive factors (exp of minus the energies).
+
+    ``unary[v, s]`` and ``pairwise[e, s, t]`` are padded with zeros to the largest
+    cardinality; ``variable_edges[e] = (u, v)`` with u < v, and ``pairwise[e, s, t]``
+    is the factor of ``x_u = s, x_v = t``.
+    """
+
+    variable_names: tuple[str, ...]
+    cardinalities: np.ndarray
+    unary: np.ndarray
+    variable_edges: np.ndarray
+    pairwise: np.ndarray
+
+
+@dataclass(frozen=True)
+class _MessageGraph:
+    """The flat arrays the kernels read (layout in ``_lbp_kernels``)."""
+
+    cardinalities: np.ndarray
+    sources: np.ndarray
+    targets: np.ndarray
+    factor_start: np.ndarray
+    factors: np.ndarray
+    incoming_start: np.ndarray
+    incoming: np.ndarray
+
+    @classmethod
+    def build(cls, cardinalities: np.ndarray, variable_edges: np.ndarray, pairwise: np.ndarray) -> _MessageGraph:
+        u, v = variable_edges[:, 0], variable_edges[:, 1]
+        sources = np.stack([u, v], axis=1).reshape(-1).astype(np.int64)
+        targets = np.stack([v, u], axis=1).reshape(-1).astype(np.int64)
+        directed = (table for forward in pairwise for table in (forward, forward.T))
+        tables = [t[: cardinalities[a], : cardinalities[b]].ravel() for t, a, b in zip(directed, sources, targets)]
+        sizes = cardinalities[sources] * cardinalities[targets]
+        return cls(
+            cardinalities=cardinalities.astype(np.int64),
+            sources=sources,
+            targets=targets,
+            factor_start=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64),
+            factors=np.concatenate(tables) if tables else np.zeros(0),
+            incoming_start=np.concatenate([[0], np.cumsum(np.bincount(targets, minlength=len(cardinalities)))]).astype(
+                np.int64
+            ),
+            incoming=np.argsort(targets, kind="stable").astype(np.int64),
+        )
+
+    def run(
+        self, unary: np.ndarray, sends: np.ndarray, damping: float, tolerance: float, max_iterations: int
+    ) -> tuple[np.ndarray, ...]:
+        """Sum- and max-product LBP on (n_objects, n_var, K) unaries (parameters validated here).
+
+        ``sends[i, v]`` false makes variable v of object i a receiver only (see ``_lbp_kernels.propagate``).
+        """
+        damping = _checks.real(damping, "damping", low=0.0, high=1.0, high_open=True)
+        tolerance = _checks.real(tolerance, "tolerance", low=0.0, low_open=True)
+        max_iterations = _checks.count(max_iterations, "max_iterations", minimum=1)
+        marginals, max_marginals = np.zeros_like(unary), np.zeros_like(unary)
+        iterations = np.zeros((unary.shape[0], 2), dtype=np.int64)
+        converged = np.zeros((unary.shape[0], 2), dtype=np.bool_)
+        arrays = (
+            self.cardinalities,
+            self.sources,
+            self.targets,
+            self.factor_start,
+            self.factors,
+            self.incoming_start,
+            self.incoming,
+        )
+        _lbp_kernels.propagate_many(
+            unary, sends, arrays, damping, tolerance, max_iterations, marginals, max_marginals, iterations, converged
+        )
+        return marginals, max_marginals, iterations, converged
+
+
+def loopy_belief_propagation(
+    potentials: WebPotentials, *, damping: float = 0.5, tolerance: float = 1e-6, max_iterations: int = 100
+) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    """Sum-product marginals and max-product max-marginals (both (n_var, K)) of any pairwise MRF.
+
+    Returns ``(marginals, max_marginals, iterations, converged)`` with the same
+    meaning of ``iterations`` and ``converged`` as :class:`WebInference`.
+    """
+    cardinalities = np.asarray(potentials.cardinalities, dtype=np.int64)
+    edges = np.asarray(potentials.variable_edges, dtype=np.int64).reshape(-1, 2)
+    n_var, width = len(cardinalities), int(cardinalities.max(initial=1))
+    unary = np.ascontiguousarray(potentials.unary, dtype=np.float64)
+    pairwise = np.asarray(potentials.pairwise, dtype=np.float64)
+    if unary.shape != (n_var, width) or pairwise.shape != (len(edges), width, width):
+        raise InvalidInputError(
+            "potentials", f"unary must be ({n_var}, {width}) and pairwise ({len(edges)}, {width}, {width})"
+        )
+    if (cardinalities < 1).any() or (edges < 0).any() or (edges >= n_var).any() or (edges[:, 0] >= edges[:, 1]).any():
+        raise InvalidInputError(
+            "potentials", "cardinalities must be >= 1 and every edge (u, v) must have 0 <= u < v < n_var"
+        )
+    states = np.arange(width)
+    valid_unary = states[None, :] < cardinalities[:, None]
+    valid_pairwise = valid_unary[edges[:, 0]][:, :, None] & valid_unary[edges[:, 1]][:, None, :]
+    if not (np.isfinite(unary).all() and np.isfinite(pairwise).all()):
+        raise InvalidInputError("potentials", "factors must be finite")
+    if (unary[valid_unary] <= 0).any() or (pairwise[valid_pairwise] <= 0).any():
+        raise InvalidInputError("potentials", "factors must be strictly positive on every state")
+    graph = _MessageGraph.build(cardinalities, edges, pairwise)
+    sends = np.ones((1, n_var), dtype=np.bool_)
+    marginals, max_marginals, iterations, converged = graph.run(unary[None], sends, damping, tolerance, max_iterations)
+    return marginals[0], max_marginals[0], int(iterations.max()), bool(converged.all())
+
+
+class ConceptWeb:
+    """An MRF over a vocabulary's concepts with clique potentials from co-occurrence counts.
+
+    The learned state is its sufficient statistics: ``cooccurrence[i, j]``, the
+    number of training objects in which concepts i and j were both active (the
+    diagonal counts each concept), and ``n_objects``. Build it with :meth:`fit`
+    or :meth:`from_state`; ``concept_variable[c]`` and ``concept_state[c]`` locate
+    concept c in the MRF.
+    """
+
+    def __init__(
+        self,
+        vocabulary: Vocabulary,
+        cooccurrence: np.ndarray,
+        n_objects: int,
+        *,
+        beta: float = DEFAULT_BETA,
+        pseudo_count: float = DEFAULT_PSEUDO_COUNT,
+        probability_floor: float = DEFAULT_PROBABILITY_FLOOR,
+    ) -> None:
+        self.vocabulary = _checks.vocabulary(vocabulary)
+        self.beta = _checks.real(beta, "beta", low=0.0)
+        self.pseudo_count = _checks.real(pseudo_count, "pseudo_count", low=0.0, low_open=True)
+        self.probability_floor = _checks.real(
+            probability_floor, "probability_floor", low=0.0, high=0.5, low_open=True, high_open=True
+        )
+        self.n_objects = _checks.count(n_objects, "n_objects", minimum=1)
+        self.cooccurrence = _checks.cooccurrence(cooccurrence, vocabulary, self.n_objects)
+        self._describe_states()
+        self._variable_edges = self._co_occurring_variables()
+        self._pairwise = self._clique_factors()
+        self._graph = _MessageGraph.build(self._cardinalities, self._variable_edges, self._pairwise)
+
+    @classmethod
+    def fit(
+        cls,
+        vocabulary: Vocabulary,
+        configurations: Sequence[Sequence[str]] | np.ndarray,
+        *,
+        beta: float = DEFAULT_BETA,
+        pseudo_count: float = DEFAULT_PSEUDO_COUNT,
+        probability_floor: float = DEFAULT_PROBABILITY_FLOOR,
+    ) -> ConceptWeb:
+        """Learn the web from the training objects' concept sets.
+
+        ``configurations`` is a list of concept-name lists (one noun, one
+        adjective of every pair, the active verbs) or an (n_objects, n_concepts)
+        0/1 array in ``vocabulary.concepts`` order.
+        """
+        active = _checks.configuration_matrix(_checks.vocabulary(vocabulary), configurations).astype(np.int64)
+        return cls(
+            vocabulary,
+            active.T @ active,
+            active.shape[0],
+            beta=beta,
+            pseudo_count=pseudo_count,
+            probability_floor=probability_floor,
+        )
+
+    @classmethod
+    def from_state(cls, vocabulary: Vocabulary, state: dict[str, Any]) -> ConceptWeb:
+        """Rebuild a web exported by :meth:`to_state`; its potentials are bit-identical."""
+        if not isinstance(state, dict):
+            raise InvalidInputError("state", f"expected a dict, got {type(state).__name__}")
+        missing = [key for key in _STATE_KEYS if key not in state]
+        if missing:
+            raise InvalidInputError("state", f"missing keys {missing}")
+        if list(state["concepts"]) != list(_checks.vocabulary(vocabulary).concepts):
+            raise InvalidInputError("state.concepts", "the state was learned over a different vocabulary")
+        return cls(
+            vocabulary,
+            state["cooccurrence"],
+            state["n_objects"],
+            beta=state["beta"],
+            pseudo_count=state["pseudo_count"],
+            probability_floor=state["probability_floor"],
+        )
+
+    def to_state(self) -> dict[str, np.ndarray | int | float | list]:
+        """Everything needed to rebuild this web exactly."""
+        return {
+            "concepts": list(self.vocabulary.concepts),
+            "cooccurrence": self.cooccurrence.copy(),
+            "n_objects": self.n_objects,
+            "beta": self.beta,
+            "pseudo_count": self.pseudo_count,
+            "probability_floor": self.probability_floor,
+        }
+
+    @property
+    def edges(self) -> np.ndarray:
+        """(n_edges, 2) concept index pairs i < j that co-occurred in training (the web of Fig. 8)."""
+        i, j = np.nonzero(np.triu(self.cooccurrence, k=1))
+        return np.stack([i, j], axis=1)
+
+    @property
+    def edge_weights(self) -> np.ndarray:
+        """The co-occurrence count of each pair in :attr:`edges`."""
+        i, j = np.nonzero(np.triu(self.cooccurrence, k=1))
+        return self.cooccurrence[i, j]
+
+    def potentials(self, perception: np.ndarray) -> WebPotentials:
+        """The factors of one object's MRF (Eqs. 2–4): what :meth:`infer` solves when ``applied`` is None."""
+        unary, _ = self._evidence(*self._check_perception(perception, None, batched=False))
+        return WebPotentials(
+            self.variable_names,
+            self._cardinalities.copy(),
+            unary[0],
+            self._variable_edges.copy(),
+            self._pairwise.copy(),
+        )
+
+    def infer(
+        self,
+        perception: np.ndarray,
+        *,
+        applied: np.ndarray | None = None,
+        damping: float = 0.5,
+        tolerance: float = 1e-6,
+        max_iterations: int = 100,
+    ) -> WebInference:
+        """Settle one object's web from its perception probabilities P(c), shape (n_concepts,).
+
+        ``applied`` (n_verbs,) bool marks the verbs whose behaviour was applied.
+        A verb not applied carries no evidence: it gets an uninformative unary
+        whatever its perception value and only *receives* messages, so its
+        probability is the web's prediction of that affordance and it does not
+        feed back into the web. ``None`` takes every verb's value as evidence.
+        """
+        return self._infer(
+            *self._check_perception(perception, applied, batched=False), damping, tolerance, max_iterations
+        )[0]
+
+    def infer_many(
+        self,
+        perceptions: np.ndarray,
+        *,
+        applied: np.ndarray | None = None,
+        damping: float = 0.5,
+        tolerance: float = 1e-6,
+        max_iterations: int = 100,
+    ) -> list[WebInference]:
+        """:meth:`infer` for (n_objects, n_concepts) perceptions (and (n_objects, n_verbs) ``applied``) in one call."""
+        return self._infer(
+            *self._check_perception(perceptions, applied, batched=True), damping, tolerance, max_iterations
+        )
+
+    def _infer(
+        self, perceptions: np.ndarray, applied: np.ndarray | None, damping: float, tolerance: float, max_iterations: int
+    ) -> list[WebInference]:
+        marginals, max_marginals, iterations, converged = self._graph.run(
+            *self._evidence(perceptions, applied), damping, tolerance, max_iterations
+        )
+        probabilities = marginals[:, self.concept_variable, self.concept_state]
+        map_configuration = np.argmax(max_marginals, axis=2)[:, self.concept_variable] == self.concept_state
+        return [
+            WebInference(probabilities[i], map_configuration[i], int(iterations[i].max()), bool(converged[i].all()))
+            for i in range(len(probabilities))
+        ]
+
+    def _check_perception(
+        self, perception: Any, applied: Any, *, batched: bool
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        n_concepts, n_verbs = len(self.vocabulary.concepts), len(self.vocabulary.verbs)
+        if batched:
+            values = _checks.probabilities(perception, "perceptions", ("n_objects", n_concepts))
+        else:
+            values = _checks.probabilities(perception, "perception", (n_concepts,))[None]
+        if applied is None:
+            return values, None
+        mask = _checks.applied_mask(applied, (len(values), n_verbs) if batched else (n_verbs,))
+        return values, mask.reshape(len(values), n_verbs)
+
+    def _evidence(self, perceptions: np.ndarray, applied: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Unary factors exp(-ψ_C) = P(c) of Eq. 3, clipped, (n_objects, n_var, K), and which variables send."""
+        clipped = np.clip(perceptions, self.probability_floor, 1.0 - self.probability_floor)
+        unary = np.zeros((len(clipped), len(self._cardinalities), self._width))
+        unary[:, self.concept_variable, self.concept_state] = clipped
+        unary[:, self._verb_variables, 0] = 1.0 - clipped[:, self._verb_concepts]
+        sends = np.ones(unary.shape[:2], dtype=np.bool_)
+        if applied is not None:
+            unary[:, self._verb_variables, :2] = np.where(applied[:, :, None], unary[:, self._verb_variables, :2], 1.0)
+            sends[:, self._verb_variables] = applied
+        return unary, sends
+
+    def _describe_states(self) -> None:
+        """Map concepts to (variable, state), and every state to its concept indicator.
+
+        A state's indicator is ``offset + sign * 1[concept active]``: a concept's own
+        state is (0, +1) and a verb's inactive state is (1, -1), so every joint state
+        count follows from the concept co-occurrence matrix and ``n_objects``.
+        """
+        vocabulary = self.vocabulary
+        n_nouns, n_pairs, n_verbs = len(vocabulary.nouns), len(vocabulary.adjective_pairs), len(vocabulary.verbs)
+        self.variable_names: tuple[str, ...] = (
+            ("noun",) + tuple(f"{a}/{b}" for a, b in vocabulary.adjective_pairs) + tuple(vocabulary.verbs)
+        )
+        self._cardinalities = np.array([n_nouns] + [2] * (n_pairs + n_verbs), dtype=np.int64)
+        self._width = int(self._cardinalities.max())
+        self.concept_variable = np.concatenate(
+            [np.zeros(n_nouns, dtype=np.int64), 1 + np.repeat(np.arange(n_pairs), 2), 1 + n_pairs + np.arange(n_verbs)]
+        ).astype(np.int64)
+        self.concept_state = np.concatenate(
+            [np.arange(n_nouns), np.tile([0, 1], n_pairs), np.ones(n_verbs, dtype=np.int64)]
+        ).astype(np.int64)
+        self._verb_concepts = n_nouns + 2 * n_pairs + np.arange(n_verbs)
+        self._verb_variables = 1 + n_pairs + np.arange(n_verbs)
+        shape = (len(self._cardinalities), self._width)
+        self._state_concept = np.zeros(shape, dtype=np.int64)
+        self._state_offset, self._state_sign = np.zeros(shape), np.zeros(shape)
+        self._state_concept[self.concept_variable, self.concept_state] = np.arange(len(self.concept_variable))
+        self._state_sign[self.concept_variable, self.concept_state] = 1.0
+        self._state_concept[self._verb_variables, 0] = self._verb_concepts
+        self._state_offset[self._verb_variables, 0] = 1.0
+        self._state_sign[self._verb_variables, 0] = -1.0
+
+    def _co_occurring_variables(self) -> np.ndarray:
+        """Variable pairs (u < v) with any two concepts that co-occurred in training (ε_ij)."""
+        incidence = np.zeros((len(self._cardinalities), len(self.concept_variable)))
+        incidence[self.concept_variable, np.arange(len(self.concept_variable))] = 1.0
+        linked = incidence @ (self.cooccurrence > 0) @ incidence.T
+        return np.argwhere(np.triu(linked, k=1) > 0).astype(np.int64)
+
+    def _clique_factors(self) -> np.ndarray:
+        """exp(-β_e ψ_K) with ψ_K(s, t) = 2 - P(s | t) - P(t | s) (Eq. 4) from smoothed joint counts.
+
+        β_e = β / (mean degree of the edge's two variables): a variable's total pull
+        from the web stays of order β whatever the size of the vocabulary.
+        """
+        u, v = self._variable_edges[:, 0], self._variable_edges[:, 1]
+        counts, total = self.cooccurrence.astype(np.float64), float(self.n_objects)
+        diagonal = np.diag(counts)
+        cs, ct = self._state_concept[u], self._state_concept[v]
+        a_s, b_s = self._state_offset[u][:, :, None], self._state_sign[u][:, :, None]
+        a_t, b_t = self._state_offset[v][:, None, :], self._state_sign[v][:, None, :]
+        joint = (
+            a_s * a_t * total
+            + a_s * b_t * diagonal[ct][:, None, :]
+            + b_s * a_t * diagonal[cs][:, :, None]
+            + b_s * b_t * counts[cs[:, :, None], ct[:, None, :]]
+        )
+        states = np.arange(self._width)
+        valid_u = states[None, :] < self._cardinalities[u][:, None]
+        valid_v = states[None, :] < self._cardinalities[v][:, None]
+        smoothed = np.where(valid_u[:, :, None] & valid_v[:, None, :], joint + self.pseudo_count, 0.0)
+        given_t = smoothed / np.maximum(smoothed.sum(axis=1, keepdims=True), self.pseudo_count)
+        given_s = smoothed / np.maximum(smoothed.sum(axis=2, keepdims=True), self.pseudo_count)
+        degree = np.bincount(self._variable_edges.reshape(-1), minlength=len(self._cardinalities))
+        strength = self.beta * 2.0 / (degree[u] + degree[v])
+        return np.where(smoothed > 0, np.exp(-strength[:, None, None] * (2.0 - given_t - given_s)), 0.0)

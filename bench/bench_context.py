@@ -1,0 +1,211 @@
+"""Speed of Incremental-LDA (``python -m bench.bench_context [--quick]``).
+
+- **Sampler throughput** (tokens × sweeps per second) of our collapsed Gibbs
+  sweep against tomotopy's ``LDAModel`` (``workers=1``, priors fixed:
+  ``optim_interval=0``) and the ``lda`` package, on the same synthetic corpora
+  drawn from an LDA generative model: a small-vocabulary one like the paper's
+  (29 concepts, K = 3, scenes of 20–40 tokens) and a large one (2,000 words,
+  K = 50, documents of 100 tokens). Initialisation is excluded: tomotopy is timed
+  after ``train(0)``, ``lda`` as the difference between two fits of different
+  lengths, ours after a first sweep.
+- **Context detection** of a 5-object scene of the paper's world
+  (``IncrementalLDA.infer_scene``, fold-in with its default sweeps) by a model
+  fitted on 50 scenes, median over many calls, against the paper's 209.82 ms and
+  against tomotopy's ``infer`` on the same scenes.
+- **Online update** (``learn_scene``) with 1,000 and with 100,000 scenes already
+  learned: median (the usual update) and mean (with the periodic growth checks,
+  amortised). The two models are built by Algorithm 1 (K = 3, 5 sweeps), then
+  learn the same new scenes, interleaved; the ratio of medians must stay below 1.5.
+
+Writes ``bench/results/context.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import statistics
+import sys
+import time
+from collections.abc import Callable
+
+import lda
+import numpy as np
+import tomotopy as tp
+
+from bench import RESULTS
+from core.context import IncrementalLDA, LDAState
+from core.world import WorldConfig, generate_scenes
+
+PAPER_DETECTION_MS = 209.82
+ALPHA, XI = 0.1, 0.1
+
+
+def synthetic_corpus(
+    n_docs: int, vocab_size: int, n_topics: int, length: tuple[int, int], seed: int
+) -> list[np.ndarray]:
+    """Documents drawn from LDA's generative model (sparse topics, α = 0.1 per document)."""
+    rng = np.random.default_rng(seed)
+    cumulative = np.cumsum(rng.dirichlet(np.full(vocab_size, 0.05), size=n_topics), axis=1)
+    docs = []
+    for _ in range(n_docs):
+        theta = rng.dirichlet(np.full(n_topics, ALPHA))
+        z = rng.choice(n_topics, size=int(rng.integers(length[0], length[1] + 1)), p=theta)
+        words = np.empty(z.shape[0], dtype=np.int32)
+        for k in np.unique(z):
+            words[z == k] = np.searchsorted(cumulative[k], rng.random(int((z == k).sum())) * cumulative[k, -1])
+        docs.append(words)
+    return docs
+
+
+def ours_throughput(docs: list[np.ndarray], vocab_size: int, n_topics: int, sweeps: int) -> float:
+    words = np.concatenate(docs)
+    offsets = np.concatenate([[0], np.cumsum([len(d) for d in docs])]).astype(np.int32)
+    state = LDAState.from_arrays(ALPHA, XI, vocab_size, n_topics, words, np.zeros_like(words), offsets)
+    rng = np.random.default_rng(0)
+    state.initialize_randomly(rng)
+    state.sweep(rng)
+    start = time.perf_counter()
+    state.sweep(rng, sweeps)
+    return words.shape[0] * sweeps / (time.perf_counter() - start)
+
+
+def tomotopy_throughput(docs: list[np.ndarray], n_topics: int, sweeps: int) -> float:
+    model = tp.LDAModel(k=n_topics, alpha=ALPHA, eta=XI, seed=0)
+    for doc in docs:
+        model.add_doc([f"w{w}" for w in doc])
+    model.optim_interval = 0
+    model.train(0, workers=1)
+    start = time.perf_counter()
+    model.train(sweeps, workers=1)
+    return sum(len(d) for d in docs) * sweeps / (time.perf_counter() - start)
+
+
+def lda_package_throughput(docs: list[np.ndarray], vocab_size: int, n_topics: int, sweeps: int) -> float:
+    counts = np.zeros((len(docs), vocab_size), dtype=np.int64)
+    for d, doc in enumerate(docs):
+        np.add.at(counts[d], doc, 1)
+
+    def fit(iterations: int) -> float:
+        start = time.perf_counter()
+        lda.LDA(n_topics=n_topics, n_iter=iterations, alpha=ALPHA, eta=XI, random_state=0, refresh=10**9).fit(counts)
+        return time.perf_counter() - start
+
+    short, long = fit(sweeps), fit(2 * sweeps)
+    return sum(len(d) for d in docs) * sweeps / (long - short) if long > short else float("nan")
+
+
+def median_us(work: Callable[[int], object], calls: int) -> float:
+    times = []
+    for i in range(calls):
+        start = time.perf_counter_ns()
+        work(i)
+        times.append((time.perf_counter_ns() - start) / 1e3)
+    return statistics.median(times)
+
+
+def detection(calls: int) -> dict[str, float]:
+    config = WorldConfig.paper()
+    training = [scene.tokens() for scene in generate_scenes(config, 50, 1)]
+    model = IncrementalLDA(seed=0).fit(training)
+    scenes = [scene.tokens() for scene in generate_scenes(config, 50, 2, objects_per_scene=5)]
+    model.infer_scene(scenes[0])
+    ours = median_us(lambda i: model.infer_scene(scenes[i % len(scenes)], seed=i), calls)
+    reference = tp.LDAModel(k=model.n_contexts, alpha=ALPHA, eta=XI, seed=0)
+    for scene in training:
+        reference.add_doc(scene)
+    reference.optim_interval = 0
+    reference.train(200, workers=1)
+    iterations = model.hyperparameters.inference_sweeps
+    documents = [reference.make_doc(scene) for scene in scenes]
+    tomotopy = median_us(
+        lambda i: reference.infer(documents[i % len(documents)], iterations=iterations, workers=1), calls
+    )
+    return {
+        "scene_tokens_mean": float(np.mean([len(s) for s in scenes])),
+        "ours_median_us": ours,
+        "tomotopy_infer_median_us": tomotopy,
+        "paper_ms": PAPER_DETECTION_MS,
+        "speed_ratio_paper_over_ours": PAPER_DETECTION_MS * 1e3 / ours,
+        "speed_ratio_tomotopy_over_ours": tomotopy / ours,
+    }
+
+
+def online(sizes: tuple[int, ...], updates: int) -> dict[str, dict[str, float]]:
+    """learn_scene times of models holding ``sizes`` scenes, the same new scenes given to each
+    model in turn (interleaved, so that a change of machine load hits every size alike)."""
+    config = WorldConfig.paper()
+    new_scenes = [scene.tokens() for scene in generate_scenes(config, updates, 99)]
+    models = {}
+    for size in sizes:
+        learned = [scene.tokens() for scene in generate_scenes(config, size, 3)]
+        models[size] = IncrementalLDA(seed=0, sweeps=5).fit(learned, n_contexts=3)
+    times: dict[int, list[float]] = {size: [] for size in sizes}
+    for scene in new_scenes:
+        for size, model in models.items():
+            start = time.perf_counter_ns()
+            model.learn_scene(scene)
+            times[size].append((time.perf_counter_ns() - start) / 1e3)
+    return {str(size): {"median_us": statistics.median(t), "mean_us": statistics.mean(t)} for size, t in times.items()}
+
+
+def main() -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="smaller corpora and fewer calls")
+    args = parser.parse_args(sys.argv[1:])
+    logging.getLogger("lda").setLevel(logging.WARNING)
+    sweeps, large_docs, calls, updates = (10, 2_000, 100, 100) if args.quick else (50, 20_000, 1_000, 500)
+    corpora = {
+        "small (29 words, K=3)": (synthetic_corpus(2_000, 29, 3, (20, 40), 0), 29, 3),
+        "large (2000 words, K=50)": (synthetic_corpus(large_docs, 2_000, 50, (100, 100), 1), 2_000, 50),
+    }
+    throughput = {}
+    for name, (docs, vocab_size, n_topics) in corpora.items():
+        ours = ours_throughput(docs, vocab_size, n_topics, sweeps)
+        tomotopy = tomotopy_throughput(docs, n_topics, sweeps)
+        lda_package = lda_package_throughput(docs, vocab_size, n_topics, max(10, sweeps // 5))
+        throughput[name] = {
+            "tokens": int(sum(len(d) for d in docs)),
+            "ours_tokens_sweeps_per_s": ours,
+            "tomotopy_tokens_sweeps_per_s": tomotopy,
+            "lda_package_tokens_sweeps_per_s": lda_package,
+            "ratio_ours_over_tomotopy": ours / tomotopy,
+            "ratio_ours_over_lda_package": ours / lda_package,
+        }
+    sizes = (1_000, 10_000) if args.quick else (1_000, 100_000)
+    updates_by_size = online(sizes, updates)
+    medians = [updates_by_size[str(size)]["median_us"] for size in sizes]
+    result = {
+        "throughput": throughput,
+        "detection_5_objects": detection(calls),
+        "online_update": updates_by_size,
+        "online_median_ratio_largest_over_smallest": medians[-1] / medians[0],
+        "cpu_count": os.cpu_count(),
+        "load_average_1min": os.getloadavg()[0],
+    }
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    (RESULTS / "context.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    for name, row in throughput.items():
+        print(
+            f"{name:>26}: ours {row['ours_tokens_sweeps_per_s'] / 1e6:6.1f} M tok·sweep/s, "
+            f"tomotopy {row['tomotopy_tokens_sweeps_per_s'] / 1e6:6.1f} M ({row['ratio_ours_over_tomotopy']:.2f}x), "
+            f"lda {row['lda_package_tokens_sweeps_per_s'] / 1e6:6.1f} M ({row['ratio_ours_over_lda_package']:.2f}x)"
+        )
+    found = result["detection_5_objects"]
+    print(
+        f"{'context of a 5-object scene':>26}: {found['ours_median_us']:.1f} µs median "
+        f"(paper {PAPER_DETECTION_MS} ms: {found['speed_ratio_paper_over_ours']:.0f}x; "
+        f"tomotopy infer {found['tomotopy_infer_median_us']:.1f} µs)"
+    )
+    for size, row in updates_by_size.items():
+        print(
+            f"{'online update, ' + size + ' scenes':>26}: {row['median_us']:.1f} µs median, {row['mean_us']:.1f} µs mean"
+        )
+    print(f"{'median ratio':>26}: {result['online_median_ratio_largest_over_smallest']:.2f} (must be < 1.5)")
+    return result
+
+
+if __name__ == "__main__":
+    main()

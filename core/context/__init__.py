@@ -1,0 +1,38 @@
+"""Contexts of scenes: Incremental-LDA (§IV of the paper, Algorithms 1–3, Eqs. 5, 7, 8).
+
+- :class:`IncrementalLDA` learns contexts from scenes given as bags of concept
+  names, in batch (:meth:`~IncrementalLDA.fit`) or online
+  (:meth:`~IncrementalLDA.learn_scene`, which returns a :class:`SceneUpdate`),
+  and answers :meth:`~IncrementalLDA.context_posterior`,
+  :meth:`~IncrementalLDA.concept_given_context` and
+  :meth:`~IncrementalLDA.top_concepts`;
+- :mod:`core.context.metrics`: l̂ of Eq. 7, H̃ of Eq. 8, Dirichlet-multinomial
+  log-likelihoods;
+- :mod:`core.context.lda`: the sampler state and Gibbs sweeps the model is built on.
+
+docs/context.md explains the choices the paper leaves open.
+"""
+
+from core.context.incremental import (
+    ContextModelState,
+    Hyperparameters,
+    IncrementalLDA,
+    SceneUpdate,
+    concept_confidence,
+    low_confidence_concepts,
+)
+from core.context.lda import LDAState
+from core.context.metrics import PAPER_RHO, average_log_likelihood, contextual_entropy
+
+__all__ = [
+    "PAPER_RHO",
+    "ContextModelState",
+    "Hyperparameters",
+    "IncrementalLDA",
+    "LDAState",
+    "SceneUpdate",
+    "average_log_likelihood",
+    "concept_confidence",
+    "contextual_entropy",
+    "low_confidence_concepts",
+]

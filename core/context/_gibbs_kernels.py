@@ -1,0 +1,294 @@
+"""Numba kernels of the collapsed Gibbs sampler for LDA (Eq. 5).
+
+The corpus is flat: ``words[i]`` is the concept id of token ``i``, ``z[i]`` its
+context, and document ``d`` owns tokens ``doc_offsets[d]:doc_offsets[d + 1]``.
+Counts are ``n_wk`` (word × context: a word's counts over contexts are
+contiguous, which is what Eq. 5 reads for every token), ``n_k`` and ``n_dk``;
+only the first ``n_contexts`` columns are live (the arrays keep spare capacity).
+
+Randomness comes in as ``uniforms`` drawn by the caller's
+``np.random.Generator``, one per sampled token, so a kernel never touches global
+random state and a model restored with its generator state continues
+bit-identically.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _draw(cumulative: np.ndarray, n_contexts: int, u: float) -> int:
+    target = u * cumulative[n_contexts - 1]
+    k = 0
+    while k < n_contexts - 1 and cumulative[k] <= target:
+        k += 1
+    return k
+
+
+@numba.njit(cache=True, nogil=True)
+def _resample(
+    i: int,
+    d: int,
+    words: np.ndarray,
+    z: np.ndarray,
+    n_wk: np.ndarray,
+    n_k: np.ndarray,
+    n_dk: np.ndarray,
+    n_contexts: int,
+    alpha: float,
+    xi: float,
+    v_xi: float,
+    inverse: np.ndarray,
+    cumulative: np.ndarray,
+    u: float,
+) -> None:
+    """One draw of Eq. 5 for token ``i`` of document ``d`` (z < 0: not yet assigned).
+
+    Eq. 5's document denominator ``N_d + Kα`` is the same for every context and
+    cancels; ``inverse[k] = 1 / (n_k + |W|ξ)`` is kept up to date for the two
+    contexts the token leaves and joins.
+    """
+    w = words[i]
+    old = z[i]
+    if old >= 0:
+        n_wk[w, old] -= 1
+        n_k[old] -= 1
+        n_dk[d, old] -= 1
+        inverse[old] = 1.0 / (n_k[old] + v_xi)
+    total = 0.0
+    for k in range(n_contexts):
+        total += (n_wk[w, k] + xi) * inverse[k] * (n_dk[d, k] + alpha)
+        cumulative[k] = total
+    new = _draw(cumulative, n_contexts, u)
+    z[i] = new
+    n_wk[w, new] += 1
+    n_k[new] += 1
+    n_dk[d, new] += 1
+    inverse[new] = 1.0 / (n_k[new] + v_xi)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _inverse_totals(n_k: np.ndarray, n_contexts: int, v_xi: float) -> np.ndarray:
+    inverse = np.empty(n_contexts)
+    for k in range(n_contexts):
+        inverse[k] = 1.0 / (n_k[k] + v_xi)
+    return inverse
+
+
+@numba.njit(cache=True, nogil=True)
+def sweep_documents(
+    words: np.ndarray,
+    z: np.ndarray,
+    doc_offsets: np.ndarray,
+    first_doc: int,
+    stop_doc: int,
+    n_wk: np.ndarray,
+    n_k: np.ndarray,
+    n_dk: np.ndarray,
+    n_contexts: int,
+    alpha: float,
+    xi: float,
+    vocab_size: int,
+    uniforms: np.ndarray,
+) -> None:
+    """One Gibbs sweep over the tokens of documents ``first_doc:stop_doc`` (Algorithm 1, Eq. 5).
+
+    The step of :func:`_resample` is written out here: this is the hot loop, and
+    calling the helper halves its throughput (measured).
+    """
+    v_xi = vocab_size * xi
+    inverse = _inverse_totals(n_k, n_contexts, v_xi)
+    cumulative = np.empty(n_contexts)
+    u_index = 0
+    for d in range(first_doc, stop_doc):
+        for i in range(doc_offsets[d], doc_offsets[d + 1]):
+            w = words[i]
+            old = z[i]
+            n_wk[w, old] -= 1
+            n_k[old] -= 1
+            n_dk[d, old] -= 1
+            inverse[old] = 1.0 / (n_k[old] + v_xi)
+            total = 0.0
+            for k in range(n_contexts):
+                total += (n_wk[w, k] + xi) * inverse[k] * (n_dk[d, k] + alpha)
+                cumulative[k] = total
+            new = _draw(cumulative, n_contexts, uniforms[u_index])
+            u_index += 1
+            z[i] = new
+            n_wk[w, new] += 1
+            n_k[new] += 1
+            n_dk[d, new] += 1
+            inverse[new] = 1.0 / (n_k[new] + v_xi)
+
+
+@numba.njit(cache=True, nogil=True)
+def sample_tokens(
+    tokens: np.ndarray,
+    token_docs: np.ndarray,
+    words: np.ndarray,
+    z: np.ndarray,
+    n_wk: np.ndarray,
+    n_k: np.ndarray,
+    n_dk: np.ndarray,
+    n_contexts: int,
+    alpha: float,
+    xi: float,
+    vocab_size: int,
+    uniforms: np.ndarray,
+) -> None:
+    """Resample the listed tokens in order (Eq. 5); a token with ``z < 0`` is unassigned
+    and gets its first context from the counts of everything sampled before it."""
+    v_xi = vocab_size * xi
+    inverse = _inverse_totals(n_k, n_contexts, v_xi)
+    cumulative = np.empty(n_contexts)
+    for j in range(tokens.shape[0]):
+        _resample(
+            tokens[j],
+            token_docs[j],
+            words,
+            z,
+            n_wk,
+            n_k,
+            n_dk,
+            n_contexts,
+            alpha,
+            xi,
+            v_xi,
+            inverse,
+            cumulative,
+            uniforms[j],
+        )
+
+
+@numba.njit(cache=True, nogil=True)
+def fold_in(
+    word_ids: np.ndarray,
+    n_wk: np.ndarray,
+    n_k: np.ndarray,
+    n_contexts: int,
+    alpha: float,
+    xi: float,
+    vocab_size: int,
+    burn_in: int,
+    uniforms: np.ndarray,
+) -> np.ndarray:
+    """Context posterior θ of one unseen document, without touching the model's counts.
+
+    The document's own tokens are counted in a local table over its distinct
+    concepts, added to the model's ``n_wk`` on the fly, so the result equals
+    sampling the document into a copy of the model. The first ``burn_in`` sweeps
+    are discarded; θ = (n_dk + α) / (N_d + Kα) is averaged over the remaining
+    sweeps (``uniforms`` holds one number per token per sweep).
+    """
+    n_tokens = word_ids.shape[0]
+    order = np.argsort(word_ids)
+    local_words = np.empty(n_tokens, dtype=np.int64)
+    distinct = np.empty(n_tokens, dtype=np.int64)
+    n_distinct = 0
+    for j in range(n_tokens):
+        i = order[j]
+        if n_distinct == 0 or distinct[n_distinct - 1] != word_ids[i]:
+            distinct[n_distinct] = word_ids[i]
+            n_distinct += 1
+        local_words[i] = n_distinct - 1
+    sweeps = uniforms.shape[0] // n_tokens
+    v_xi = vocab_size * xi
+    local_wk = np.zeros((n_distinct, n_contexts), dtype=np.int64)
+    local_k = np.zeros(n_contexts, dtype=np.int64)
+    n_dk = np.zeros(n_contexts, dtype=np.int64)
+    z = np.full(n_tokens, -1, dtype=np.int64)
+    cumulative = np.empty(n_contexts)
+    theta = np.zeros(n_contexts)
+    u_index = 0
+    for sweep in range(sweeps):
+        for i in range(n_tokens):
+            u = local_words[i]
+            w = word_ids[i]
+            old = z[i]
+            if old >= 0:
+                local_wk[u, old] -= 1
+                local_k[old] -= 1
+                n_dk[old] -= 1
+            total = 0.0
+            for k in range(n_contexts):
+                total += (n_wk[w, k] + local_wk[u, k] + xi) / (n_k[k] + local_k[k] + v_xi) * (n_dk[k] + alpha)
+                cumulative[k] = total
+            new = _draw(cumulative, n_contexts, uniforms[u_index])
+            u_index += 1
+            z[i] = new
+            local_wk[u, new] += 1
+            local_k[new] += 1
+            n_dk[new] += 1
+        if sweep >= burn_in:
+            for k in range(n_contexts):
+                theta[k] += n_dk[k] + alpha
+    return theta / theta.sum()
+
+
+@numba.njit(cache=True, nogil=True)
+def conditional_entropy(
+    words: np.ndarray,
+    z: np.ndarray,
+    doc_offsets: np.ndarray,
+    first_doc: int,
+    stop_doc: int,
+    n_wk: np.ndarray,
+    n_k: np.ndarray,
+    n_dk: np.ndarray,
+    n_contexts: int,
+    alpha: float,
+    xi: float,
+    vocab_size: int,
+) -> float:
+    """Σ_i H(z_i | z_¬i, w): the entropies of Eq. 5's conditionals, summed over the
+    tokens of documents ``first_doc:stop_doc`` (read-only: nothing is resampled)."""
+    v_xi = vocab_size * xi
+    p = np.empty(n_contexts)
+    entropy = 0.0
+    for d in range(first_doc, stop_doc):
+        for i in range(doc_offsets[d], doc_offsets[d + 1]):
+            w = words[i]
+            own = z[i]
+            total = 0.0
+            for k in range(n_contexts):
+                mine = 1 if k == own else 0
+                p[k] = (n_wk[w, k] - mine + xi) / (n_k[k] - mine + v_xi) * (n_dk[d, k] - mine + alpha)
+                total += p[k]
+            for k in range(n_contexts):
+                if p[k] > 0.0:
+                    q = p[k] / total
+                    entropy -= q * math.log(q)
+    return entropy
+
+
+@numba.njit(cache=True, nogil=True)
+def reassign_tokens(
+    tokens: np.ndarray,
+    token_docs: np.ndarray,
+    new_contexts: np.ndarray,
+    words: np.ndarray,
+    z: np.ndarray,
+    n_wk: np.ndarray,
+    n_k: np.ndarray,
+    n_dk: np.ndarray,
+) -> None:
+    """Set ``z[tokens] = new_contexts`` and move their counts along (assigned tokens only)."""
+    for j in range(tokens.shape[0]):
+        i = tokens[j]
+        d = token_docs[j]
+        w = words[i]
+        old = z[i]
+        new = new_contexts[j]
+        if old == new:
+            continue
+        n_wk[w, old] -= 1
+        n_k[old] -= 1
+        n_dk[d, old] -= 1
+        z[i] = new
+        n_wk[w, new] += 1
+        n_k[new] += 1
+        n_dk[d, new] += 1

@@ -1,0 +1,578 @@
+"""Incremental-LDA (§IV-C, Algorithm 2): contexts of scenes, learned online with K grown on demand.
+
+Two rules decide when K grows (``k_selection``; docs/context.md has the
+measurements behind the choice):
+
+- ``"likelihood"`` (default), a birth move: propose K + 1 by a K-incremental
+  start (Algorithm 3) and keep it only if it explains the scenes better. The score
+  is the collapsed joint log-likelihood log P(w, z | K) (Griffiths & Steyvers 2004)
+  plus the entropy of the sampler's conditionals Σ_i H(z_i | z_¬i, w), at a few
+  Gibbs samples. The sum is a lower bound on the evidence log P(w | K)
+  (log P(w) = E[log P(w, z)] + H(z | w), and H(z | w) ≥ Σ_i H(z_i | z_¬i, w)); the
+  joint alone leaves out the entropy term, which grows with K, and undercounts
+  contexts. The low-confidence tokens that start the new context are those of
+  the scene the model explains worst (lowest mean log P(w | s)); every other token
+  keeps its context or moves with probability δ. ``birth_proposals`` such starts
+  (the worst, second worst... scene) are tried and the best kept; K + 1 wins when
+  its mean score beats K's by more than ``growth_z`` standard errors (0 in batch,
+  3 online, where a test runs every ``birth_check_interval`` scenes).
+- ``"paper"``: Algorithm 2 as written, K grows while C_low ≠ ∅, C_low being the
+  concepts whose confidence is below τ, and Algorithm 3 starts the new context
+  with the tokens of C_low. The paper does not define the confidence of a
+  concept's contextual assignment; here it is P(c | χ) under the concept's best
+  context, max_χ φ_χc (a measure normalised over contexts would be 1 for every
+  concept at K = 1, and K would never grow).
+
+Online (:meth:`IncrementalLDA.learn_scene`) the model never re-learns: a scene's
+tokens are sampled for ``scene_sweeps`` sweeps, each together with
+``rejuvenation_tokens`` earlier tokens drawn uniformly (Canini, Shi & Griffiths
+2009), and growth is checked only on a window of the last ``birth_window`` scenes
+(after each of the first ``birth_check_interval`` scenes, then every
+``birth_check_interval`` scenes), scoring the window given the scenes before it.
+So an update costs O(scene + rejuvenation) and a growth check O(window), whatever
+the number of scenes learned.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from core.context.lda import LDAState, layout_problems
+from core.context.metrics import PAPER_RHO, contextual_entropy
+from core.errors import InvalidInputError
+from core.vocabulary import Vocabulary
+
+KSelection = Literal["likelihood", "paper"]
+K_SELECTIONS: tuple[str, ...] = ("likelihood", "paper")
+
+
+@dataclass(frozen=True)
+class Hyperparameters:
+    """Everything that configures an :class:`IncrementalLDA` (the paper's symbols where it has them)."""
+
+    alpha: float = 0.1
+    """α: symmetric Dirichlet prior on a scene's contexts (Eq. 5; §V-B uses 0.1)."""
+    xi: float = 0.1
+    """ξ: symmetric Dirichlet prior on a context's concepts (Eq. 5; §V-B uses 0.1)."""
+    k_selection: KSelection = "likelihood"
+    """How K grows: ``"likelihood"`` (birth move) or ``"paper"`` (C_low ≠ ∅)."""
+    tau: float = 0.03
+    """τ: a concept is in C_low when its confidence max_χ φ_χc is below τ (docs/context.md
+    has the τ scan behind 0.03)."""
+    delta: float = 0.05
+    """δ: probability that a confident token moves to the new context (Algorithm 3)."""
+    max_contexts: int = 10
+    """K never exceeds this; at the cap growth is simply not proposed any more."""
+    sweeps: int = 200
+    """Gibbs sweeps after each K-incremental start (batch, or over the growth window)."""
+    likelihood_samples: int = 10
+    """Samples averaged by the birth move's score."""
+    growth_z: float = 0.0
+    """:meth:`IncrementalLDA.fit` keeps K + 1 only if the mean score rises by more than
+    this many standard errors (of the difference of the two sample means)."""
+    online_growth_z: float = 3.0
+    """The same margin online: a long-lived model runs a test every
+    ``birth_check_interval`` scenes, so each test must rarely accept by chance."""
+    birth_proposals: int = 2
+    """Proposals per birth move, seeded with the worst-explained scenes in turn."""
+    sample_lag: int = 5
+    """Sweeps between two of those samples."""
+    scene_sweeps: int = 5
+    """Online: sweeps over a new scene's tokens."""
+    rejuvenation_tokens: int = 64
+    """Online: earlier tokens resampled with each of those sweeps."""
+    birth_window: int = 100
+    """Online: growth is decided on the last this-many scenes."""
+    birth_check_interval: int = 25
+    """Online: growth is checked after each of the first this-many scenes, then every this-many."""
+    inference_sweeps: int = 30
+    """Fold-in sweeps of :meth:`IncrementalLDA.infer_scene`."""
+    inference_burn_in: int = 10
+    """Of those, the first ones not averaged."""
+
+    def __post_init__(self) -> None:
+        for name in ("alpha", "xi"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+                raise InvalidInputError(name, f"must be a positive number, got {value!r}")
+        if self.k_selection not in K_SELECTIONS:
+            raise InvalidInputError("k_selection", f"must be one of {K_SELECTIONS}, got {self.k_selection!r}")
+        if not (isinstance(self.tau, int | float) and 0.0 < self.tau < 1.0):
+            raise InvalidInputError("tau", f"must lie in (0, 1), got {self.tau!r}")
+        if not (isinstance(self.delta, int | float) and 0.0 <= self.delta <= 1.0):
+            raise InvalidInputError("delta", f"must lie in [0, 1], got {self.delta!r}")
+        for name in ("growth_z", "online_growth_z"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (isinstance(value, int | float) and np.isfinite(value) and value >= 0):
+                raise InvalidInputError(name, f"must be a number >= 0, got {value!r}")
+        if not (isinstance(self.likelihood_samples, int) and self.likelihood_samples >= 2):
+            raise InvalidInputError("likelihood_samples", f"must be an integer >= 2, got {self.likelihood_samples!r}")
+        for name in (
+            "max_contexts",
+            "sweeps",
+            "sample_lag",
+            "scene_sweeps",
+            "birth_proposals",
+            "birth_window",
+            "birth_check_interval",
+            "inference_sweeps",
+        ):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
+                raise InvalidInputError(name, f"must be an integer >= 1, got {value!r}")
+        for name in ("rejuvenation_tokens", "inference_burn_in"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and not isinstance(value, bool) and value >= 0):
+                raise InvalidInputError(name, f"must be an integer >= 0, got {value!r}")
+        if self.inference_burn_in >= self.inference_sweeps:
+            raise InvalidInputError("inference_burn_in", "must be smaller than inference_sweeps")
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+@dataclass(frozen=True)
+class SceneUpdate:
+    """Exactly what one :meth:`IncrementalLDA.learn_scene` changed (for incremental persistence)."""
+
+    scene_index: int
+    word_ids: np.ndarray
+    """The scene's tokens (concept ids, int32), in the order given."""
+    assignments: np.ndarray
+    """Their contexts after the update (int32)."""
+    reassigned_tokens: np.ndarray
+    """Earlier tokens whose context changed (rejuvenation, growth), as global token indices (int64)."""
+    reassigned_contexts: np.ndarray
+    """Their new contexts (int32)."""
+    changed_counts: np.ndarray
+    """One row (context, concept, new n_kw) per count entry that changed (int64, m × 3)."""
+    contexts_before: int
+    contexts_after: int
+    vocabulary_additions: tuple[str, ...]
+    """Concepts first seen in this scene; they got ids |W|_before, |W|_before + 1, ..."""
+    rng_state: dict[str, Any]
+    """The model's random generator state after the update."""
+    context_posterior: np.ndarray
+    """θ of the scene after the update, (contexts_after,)."""
+    growth_checked: bool
+    """Whether this update ran a growth check on the window."""
+
+
+@dataclass
+class ContextModelState:
+    """A model as plain arrays and numbers; :meth:`IncrementalLDA.from_state` restores it exactly."""
+
+    hyperparameters: dict[str, Any]
+    vocabulary: list[str]
+    n_contexts: int
+    words: np.ndarray
+    """Concept id of every token, scene after scene (int32)."""
+    assignments: np.ndarray
+    """Context of every token (int32)."""
+    doc_offsets: np.ndarray
+    """Scene d owns tokens doc_offsets[d]:doc_offsets[d + 1] (int32, |D| + 1 entries)."""
+    n_kw: np.ndarray
+    """Concept counts per context, K × |W| (int32): redundant with the assignments, checked on restore."""
+    rng_state: dict[str, Any] = field(default_factory=dict)
+
+
+def concept_confidence(state: LDAState) -> np.ndarray:
+    """Confidence of each concept's contextual assignment: max_χ P(c | χ) (the ``paper`` rule)."""
+    return state.concept_given_context().max(axis=0)
+
+
+def low_confidence_concepts(state: LDAState, tau: float, first_doc: int = 0) -> np.ndarray:
+    """C_low as a mask over the vocabulary: concepts seen in scenes ``first_doc:`` whose
+    confidence is below τ."""
+    seen = np.zeros(state.vocab_size, dtype=bool)
+    seen[state.words[state.window_tokens(first_doc)]] = True
+    return seen & (concept_confidence(state) < tau)
+
+
+class IncrementalLDA:
+    """Incremental-LDA over scenes given as bags of concept names (Algorithms 1–3)."""
+
+    def __init__(self, vocabulary: Iterable[str] | Vocabulary = (), *, seed: int = 0, **hyperparameters: Any) -> None:
+        self.hyperparameters = Hyperparameters(**hyperparameters)
+        self._rng = np.random.default_rng(_validated_seed(seed))
+        self._vocabulary: list[str] = []
+        self._index: dict[str, int] = {}
+        self._state = LDAState(self.hyperparameters.alpha, self.hyperparameters.xi)
+        concepts = vocabulary.concepts if isinstance(vocabulary, Vocabulary) else vocabulary
+        names = _validated_words(concepts, "vocabulary", allow_empty=True)
+        if len(set(names)) != len(names):
+            raise InvalidInputError("vocabulary", "concept names must be unique")
+        self._add_concepts(names)
+
+    # Read-only views.
+
+    @property
+    def vocabulary(self) -> tuple[str, ...]:
+        return tuple(self._vocabulary)
+
+    @property
+    def n_contexts(self) -> int:
+        return self._state.n_contexts
+
+    @property
+    def n_scenes(self) -> int:
+        return self._state.n_documents
+
+    @property
+    def context_cap_reached(self) -> bool:
+        """K = max_contexts: no further context will be proposed."""
+        return self.n_contexts >= self.hyperparameters.max_contexts
+
+    @property
+    def lda_state(self) -> LDAState:
+        """The underlying sampler state, for reading (changing it bypasses the model)."""
+        return self._state
+
+    # Learning.
+
+    def fit(self, scenes: Sequence[Sequence[str]], n_contexts: int | None = None) -> IncrementalLDA:
+        """Learn these scenes as a batch, replacing what was learned (the vocabulary stays).
+
+        Without ``n_contexts``, Algorithm 2: K starts at 1 and grows by the
+        ``k_selection`` rule, each growth step over the whole corpus. With it, Algorithm 1:
+        that many contexts, assignments drawn uniformly, then ``sweeps`` Gibbs sweeps.
+        """
+        if len(scenes) == 0:
+            raise InvalidInputError("scenes", "needs at least one scene")
+        h = self.hyperparameters
+        if n_contexts is not None and not (isinstance(n_contexts, int) and 1 <= n_contexts <= h.max_contexts):
+            raise InvalidInputError(
+                "n_contexts", f"must be an integer in 1..max_contexts ({h.max_contexts}), got {n_contexts!r}"
+            )
+        checked = [_validated_words(scene, f"scenes[{i}]") for i, scene in enumerate(scenes)]
+        self._state = LDAState(h.alpha, h.xi, len(self._vocabulary), n_contexts or 1)
+        for words in checked:
+            self._add_concepts(words)
+            self._state.append_document(self._ids(words))
+        if n_contexts is None:
+            self._state.assignments[:] = 0
+            self._state.recount()
+            self._grow_contexts(0, h.growth_z)
+        else:
+            self._state.initialize_randomly(self._rng)
+            self._state.sweep(self._rng, h.sweeps)
+        return self
+
+    def grow_context(self) -> None:
+        """Algorithm 3's start, whatever the K-selection rule would decide: open context K + 1
+        with the low-confidence tokens (and each other token with probability δ). Those are
+        the tokens of C_low under the ``paper`` rule, the tokens of the scene explained worst
+        (the birth move's first proposal) under ``likelihood``. For experiments that force
+        K (Figs. 10 and 11); follow it with :meth:`sweep`."""
+        h = self.hyperparameters
+        if self.context_cap_reached:
+            raise InvalidInputError("max_contexts", f"the model already has max_contexts = {h.max_contexts} contexts")
+        if self.n_scenes == 0:
+            raise InvalidInputError("scenes", "the model has learned no scene yet")
+        if h.k_selection == "paper":
+            low = low_confidence_concepts(self._state, h.tau)[self._state.words]
+        else:
+            low = self._scene_tokens(0, int(np.argmin(self._state.scene_fit(0))))
+        self._state.grow_k_incrementally(low, h.delta, self._rng)
+
+    def sweep(self, sweeps: int = 1) -> None:
+        """Gibbs sweeps over every learned scene (Eq. 5) with the current K."""
+        if isinstance(sweeps, bool) or not isinstance(sweeps, int) or sweeps < 0:
+            raise InvalidInputError("sweeps", f"must be an integer >= 0, got {sweeps!r}")
+        self._state.sweep(self._rng, sweeps)
+
+    def learn_scene(self, words: Sequence[str]) -> SceneUpdate:
+        """Add one scene online (Algorithm 2's loop body) and report what changed."""
+        words = _validated_words(words, "words")
+        state, h = self._state, self.hyperparameters
+        contexts_before = state.n_contexts
+        additions = self._add_concepts(words)
+        ids = self._ids(words)
+        earlier = state.n_tokens
+        scene = state.append_document(ids)
+        scene_tokens = np.arange(earlier, state.n_tokens, dtype=np.int64)
+        rejuvenated = self._rng.integers(0, earlier, size=(h.scene_sweeps, h.rejuvenation_tokens if earlier else 0))
+        touched = [rejuvenated.ravel()]
+        previous = [state.assignments[touched[0]]]
+        shape = (h.scene_sweeps, scene_tokens.shape[0])
+        sweeps = np.hstack([np.broadcast_to(scene_tokens, shape), rejuvenated])
+        sweep_docs = np.hstack([np.full(shape, scene), state.scene_of(rejuvenated)])
+        state.sample_tokens(sweeps.ravel(), self._rng, sweep_docs.ravel())
+        growth_checked = self._growth_due(scene)
+        if growth_checked:
+            first_doc = max(0, state.n_documents - h.birth_window)
+            window = np.arange(state.doc_offsets[first_doc], earlier, dtype=np.int64)
+            touched.append(window)
+            previous.append(state.assignments[window].copy())
+            self._grow_contexts(first_doc, h.online_growth_z)
+        reassigned, old_contexts = _first_occurrences(np.concatenate(touched), np.concatenate(previous))
+        new_contexts = state.assignments[reassigned]
+        changed = old_contexts != new_contexts
+        reassigned, old_contexts, new_contexts = reassigned[changed], old_contexts[changed], new_contexts[changed]
+        changed_counts = self._changed_counts(
+            np.concatenate([state.words[reassigned], ids]),
+            np.concatenate([old_contexts, np.full(ids.shape[0], -1, dtype=np.int32)]),
+            np.concatenate([new_contexts, state.assignments[scene_tokens]]),
+        )
+        return SceneUpdate(
+            scene_index=scene,
+            word_ids=ids,
+            assignments=state.assignments[scene_tokens].copy(),
+            reassigned_tokens=reassigned,
+            reassigned_contexts=new_contexts.astype(np.int32),
+            changed_counts=changed_counts,
+            contexts_before=contexts_before,
+            contexts_after=state.n_contexts,
+            vocabulary_additions=tuple(additions),
+            rng_state=self._rng.bit_generator.state,
+            context_posterior=state.context_given_scene(scene, scene + 1)[0],
+            growth_checked=growth_checked,
+        )
+
+    def _growth_due(self, scene: int) -> bool:
+        h = self.hyperparameters
+        seen = scene + 1
+        return not self.context_cap_reached and (seen <= h.birth_check_interval or seen % h.birth_check_interval == 0)
+
+    def _grow_contexts(self, first_doc: int, growth_z: float) -> None:
+        """Algorithm 2's inner loop on scenes ``first_doc:`` (all of them in batch, the window online)."""
+        state, h = self._state, self.hyperparameters
+        while state.n_contexts < h.max_contexts:
+            if h.k_selection == "paper":
+                low = low_confidence_concepts(state, h.tau, first_doc)
+                if not low.any():
+                    return
+                state.grow_k_incrementally(
+                    low[state.words[state.window_tokens(first_doc)]], h.delta, self._rng, first_doc
+                )
+                state.sweep(self._rng, h.sweeps, first_doc)
+            elif not self._birth_move(first_doc, growth_z):
+                return
+
+    def _birth_move(self, first_doc: int, growth_z: float) -> bool:
+        """Propose context K + 1 on scenes ``first_doc:``; keep it if their score improves
+        by more than ``growth_z`` standard errors.
+
+        Both sides get the same Gibbs budget: the current K is sampled ``sweeps``
+        sweeps before it is scored, like each proposal after its K-incremental start.
+        Each of the ``birth_proposals`` proposals seeds the new context with one of the
+        scenes explained worst; the best-scoring one is compared with the current K.
+        """
+        state, h = self._state, self.hyperparameters
+        state.sweep(self._rng, h.sweeps, first_doc)
+        current = self.growth_score(first_doc)
+        tokens = state.window_tokens(first_doc)
+        saved = state.assignments[tokens].copy()
+        worst_first = first_doc + np.argsort(state.scene_fit(first_doc), kind="stable")
+        best_score, best_assignments = None, saved
+        for seed_scene in worst_first[: h.birth_proposals]:
+            state.grow_k_incrementally(self._scene_tokens(first_doc, seed_scene), h.delta, self._rng, first_doc)
+            state.sweep(self._rng, h.sweeps, first_doc)
+            score = self.growth_score(first_doc)
+            if best_score is None or score.mean() > best_score.mean():
+                best_score, best_assignments = score, state.assignments[tokens].copy()
+            state.reassign(tokens, saved)
+            state.remove_last_context()
+        if best_score is None or _improvement_in_standard_errors(best_score, current) <= growth_z:
+            return False
+        state.add_context()
+        state.reassign(tokens, best_assignments)
+        return True
+
+    def _scene_tokens(self, first_doc: int, scene: int) -> np.ndarray:
+        """Mask over the tokens of scenes ``first_doc:`` marking those of ``scene``."""
+        tokens = self._state.window_tokens(first_doc)
+        offsets = self._state.doc_offsets
+        return (tokens >= offsets[scene]) & (tokens < offsets[scene + 1])
+
+    def growth_score(self, first_doc: int = 0) -> np.ndarray:
+        """The birth move's score of scenes ``first_doc:`` (given the earlier ones),
+        log P(w, z | K) + Σ_i H(z_i | z_¬i, w), at ``likelihood_samples`` Gibbs samples
+        ``sample_lag`` sweeps apart. Sampling moves the model on."""
+        state, h = self._state, self.hyperparameters
+        scores = np.empty(h.likelihood_samples)
+        for i in range(h.likelihood_samples):
+            state.sweep(self._rng, h.sample_lag, first_doc)
+            scores[i] = state.joint_log_likelihood(first_doc) + state.conditional_entropy(first_doc)
+        return scores
+
+    # Using the model.
+
+    def infer_scene(self, words: Sequence[str], *, seed: int = 0) -> np.ndarray:
+        """Context posterior θ (K,) of an unseen scene, by fold-in Gibbs sampling against the
+        current counts (the model, including its random state, is left unchanged).
+
+        Concepts the model has never seen carry no evidence and are ignored; a scene of
+        only such concepts gets the uniform prior.
+        """
+        words = _validated_words(words, "words")
+        rng = np.random.default_rng(_validated_seed(seed))
+        known = np.array([self._index[w] for w in words if w in self._index], dtype=np.int32)
+        if known.shape[0] == 0:
+            return np.full(self.n_contexts, 1.0 / self.n_contexts)
+        h = self.hyperparameters
+        return self._state.fold_in(known, rng, h.inference_sweeps, h.inference_burn_in)
+
+    def context_posterior(self, scene: Sequence[str] | int, *, seed: int = 0) -> np.ndarray:
+        """P(χ | scene), (K,): a learned scene by index (its θ), or an unseen one by its concepts."""
+        if isinstance(scene, int | np.integer) and not isinstance(scene, bool):
+            if not 0 <= scene < self.n_scenes:
+                raise InvalidInputError("scene", f"no learned scene {scene} (there are {self.n_scenes})")
+            return self._state.context_given_scene(int(scene), int(scene) + 1)[0]
+        return self.infer_scene(scene, seed=seed)
+
+    def concept_given_context(self) -> np.ndarray:
+        """P(c | χ), K × |W|, rows in context order, columns in :attr:`vocabulary` order."""
+        return self._state.concept_given_context()
+
+    def top_concepts(self, k: int) -> list[list[tuple[str, float]]]:
+        """The ``k`` most probable concepts of each context, with P(c | χ)."""
+        if not (isinstance(k, int) and k >= 1):
+            raise InvalidInputError("k", f"must be an integer >= 1, got {k!r}")
+        phi = self.concept_given_context()
+        order = np.argsort(-phi, axis=1, kind="stable")[:, :k]
+        return [[(self._vocabulary[w], float(phi[c, w])) for w in row] for c, row in enumerate(order)]
+
+    def entropy(self, rho: float = PAPER_RHO) -> float:
+        """H̃ of Eq. 8 over the learned scenes (see :func:`metrics.contextual_entropy`)."""
+        if self.n_scenes == 0:
+            raise InvalidInputError("scenes", "the model has learned no scene yet")
+        return contextual_entropy(self.concept_given_context(), self._state.context_given_scene(), rho)
+
+    def low_confidence_concepts(self) -> list[str]:
+        """C_low under τ (the ``paper`` rule's set), by name."""
+        mask = low_confidence_concepts(self._state, self.hyperparameters.tau)
+        return [self._vocabulary[w] for w in np.flatnonzero(mask)]
+
+    def joint_log_likelihood(self) -> float:
+        """Collapsed log P(w, z | K) of all learned scenes."""
+        return self._state.joint_log_likelihood()
+
+    # State.
+
+    def to_state(self) -> ContextModelState:
+        state = self._state
+        return ContextModelState(
+            hyperparameters=self.hyperparameters.to_dict(),
+            vocabulary=list(self._vocabulary),
+            n_contexts=state.n_contexts,
+            words=state.words.copy(),
+            assignments=state.assignments.copy(),
+            doc_offsets=state.doc_offsets.copy(),
+            n_kw=np.ascontiguousarray(state.n_kw),
+            rng_state=self._rng.bit_generator.state,
+        )
+
+    @classmethod
+    def from_state(cls, saved: ContextModelState) -> IncrementalLDA:
+        """The model exactly as exported: it continues as the original would have."""
+        try:
+            model = cls(saved.vocabulary, **saved.hyperparameters)
+        except TypeError as error:
+            raise InvalidInputError("state.hyperparameters", str(error)) from None
+        words = _state_array(saved.words, "state.words")
+        assignments = _state_array(saved.assignments, "state.assignments")
+        offsets = _state_array(saved.doc_offsets, "state.doc_offsets")
+        h = model.hyperparameters
+        n_contexts = saved.n_contexts
+        if isinstance(n_contexts, bool) or not (
+            isinstance(n_contexts, int | np.integer) and 1 <= n_contexts <= h.max_contexts
+        ):
+            raise InvalidInputError("state.n_contexts", f"must be in 1..max_contexts, got {n_contexts!r}")
+        problems = layout_problems(words, assignments, offsets, len(model._vocabulary), int(n_contexts))
+        if problems:
+            raise InvalidInputError("state", "; ".join(problems))
+        state = LDAState.from_arrays(
+            h.alpha, h.xi, len(model._vocabulary), int(n_contexts), words, assignments, offsets
+        )
+        if not np.array_equal(np.asarray(saved.n_kw), state.n_kw):
+            raise InvalidInputError("state.n_kw", "differs from the counts of the stored assignments")
+        model._state = state
+        try:
+            model._rng.bit_generator.state = saved.rng_state
+        except (TypeError, ValueError, KeyError) as error:
+            raise InvalidInputError("state.rng_state", f"not a PCG64 generator state ({error})") from None
+        return model
+
+    def check_invariants(self) -> None:
+        """Raise AssertionError when the counts differ from those of the stored assignments."""
+        problems = self._state.invariant_violations()
+        if len(self._vocabulary) != self._state.vocab_size:
+            problems.append("vocabulary size differs from the count matrices")
+        if problems:
+            raise AssertionError("; ".join(problems))
+
+    # Vocabulary.
+
+    def _add_concepts(self, words: Sequence[str]) -> list[str]:
+        added = []
+        for word in words:
+            if word not in self._index:
+                self._index[word] = len(self._vocabulary)
+                self._vocabulary.append(word)
+                added.append(word)
+        if added:
+            self._state.add_words(len(added))
+        return added
+
+    def _ids(self, words: Sequence[str]) -> np.ndarray:
+        return np.fromiter((self._index[w] for w in words), dtype=np.int32, count=len(words))
+
+    def _changed_counts(self, words: np.ndarray, old: np.ndarray, new: np.ndarray) -> np.ndarray:
+        """(context, concept, count) of every n_kw entry with a nonzero net change."""
+        k_capacity = self.hyperparameters.max_contexts + 1
+        words, old, new = words.astype(np.int64), old.astype(np.int64), new.astype(np.int64)
+        keys = np.concatenate([words[old >= 0] * k_capacity + old[old >= 0], words * k_capacity + new])
+        deltas = np.concatenate(
+            [-np.ones(int((old >= 0).sum()), dtype=np.int64), np.ones(words.shape[0], dtype=np.int64)]
+        )
+        unique, inverse = np.unique(keys, return_inverse=True)
+        net = np.bincount(inverse, weights=deltas, minlength=unique.shape[0])
+        entries = unique[net != 0]
+        concepts, contexts = entries // k_capacity, entries % k_capacity
+        counts = self._state.n_wk[concepts, contexts]
+        return np.stack([contexts, concepts, counts], axis=1).astype(np.int64)
+
+
+def _validated_words(words: Any, field_name: str, allow_empty: bool = False) -> list[str]:
+    if isinstance(words, str) or not isinstance(words, Sequence | Iterable):
+        raise InvalidInputError(field_name, "must be a sequence of concept names")
+    words = list(words)
+    if not words and not allow_empty:
+        raise InvalidInputError(field_name, "a scene needs at least one concept")
+    for word in words:
+        if not isinstance(word, str) or not word:
+            raise InvalidInputError(field_name, f"concept names must be non-empty strings, got {word!r}")
+    return words
+
+
+def _validated_seed(seed: Any) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise InvalidInputError("seed", f"must be an integer >= 0, got {seed!r}")
+    return int(seed)
+
+
+def _state_array(values: Any, field_name: str) -> np.ndarray:
+    array = np.asarray(values)
+    if array.ndim != 1 or (array.size and not np.issubdtype(array.dtype, np.integer)):
+        raise InvalidInputError(field_name, "must be a one-dimensional integer array")
+    return array.astype(np.int32)
+
+
+def _improvement_in_standard_errors(proposed: np.ndarray, current: np.ndarray) -> float:
+    """(mean proposed − mean current) / standard error of that difference."""
+    difference = proposed.mean() - current.mean()
+    error = np.sqrt(proposed.var(ddof=1) / proposed.shape[0] + current.var(ddof=1) / current.shape[0])
+    if error > 0:
+        return float(difference / error)
+    return np.inf if difference > 0 else -np.inf
+
+
+def _first_occurrences(tokens: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct tokens with the value recorded at their first occurrence."""
+    unique, first = np.unique(tokens, return_index=True)
+    return unique.astype(np.int64), values[first]

@@ -1,0 +1,92 @@
+"""Scores of a context model: Eq. 7, Eq. 8 and collapsed log-likelihoods.
+
+All logarithms are natural (entropies in nats, log-likelihoods in nats).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.special import gammaln
+
+from core.errors import InvalidInputError
+
+#: ρ of Eq. 8 as the paper sets it "experimentally".
+PAPER_RHO = 0.25
+
+
+def dirichlet_multinomial_log_likelihood(
+    counts: np.ndarray, totals: np.ndarray, concentration: float, dimension: int
+) -> float:
+    """Σ_r log ∫ Π_c p_c^{n_rc} Dir(p | β) dp for count rows ``counts`` (one row per
+    Dirichlet draw, ``dimension`` categories, symmetric β = ``concentration``):
+
+        Σ_r [ log Γ(Cβ) − log Γ(N_r + Cβ) + Σ_c (log Γ(n_rc + β) − log Γ(β)) ].
+
+    ``totals[r]`` is N_r, the row's sum over all C categories; ``counts`` may hold
+    only some of the columns: a column left out adds nothing when it is zero, and
+    cancels in a difference of two calls over the same columns when it is not.
+    """
+    beta_total = dimension * concentration
+    return float(
+        counts.shape[0] * gammaln(beta_total)
+        - gammaln(totals + beta_total).sum()
+        + (gammaln(counts + concentration) - gammaln(concentration)).sum()
+    )
+
+
+def entropy(probabilities: np.ndarray, axis: int = -1) -> np.ndarray:
+    """Shannon entropy −Σ p log p along ``axis`` (0 log 0 = 0)."""
+    p = np.asarray(probabilities, dtype=float)
+    logs = np.log(np.where(p > 0.0, p, 1.0))
+    return -(p * logs).sum(axis=axis)
+
+
+def contextual_entropy(
+    concept_given_context: np.ndarray, context_given_scene: np.ndarray, rho: float = PAPER_RHO
+) -> float:
+    """H̃ = ρ H(C|X) + (1 − ρ) H(X|S) of Eq. 8, from the model's estimates.
+
+    The joint of scene S, context X and concept C is taken as
+    P(s, χ, c) = P(s) θ_sχ φ_χc with scenes equally likely (P(s) = 1/|D|),
+    θ = P(X|S) (``context_given_scene``, one row per scene) and φ = P(C|X)
+    (``concept_given_context``, one row per context, over the whole vocabulary).
+    Then H(X|S) = mean_s H(θ_s), and H(C|X) = Σ_χ P(χ) H(φ_χ) with
+    P(χ) = mean_s θ_sχ.
+    """
+    if not 0.0 <= rho <= 1.0:
+        raise InvalidInputError("rho", f"must lie in [0, 1], got {rho}")
+    phi = np.asarray(concept_given_context, dtype=float)
+    theta = np.asarray(context_given_scene, dtype=float)
+    if theta.ndim != 2 or theta.shape[0] == 0:
+        raise InvalidInputError("context_given_scene", "needs one row per scene and at least one scene")
+    if phi.ndim != 2 or phi.shape[0] != theta.shape[1]:
+        raise InvalidInputError("concept_given_context", f"needs one row per context ({theta.shape[1]})")
+    context_marginal = theta.mean(axis=0)
+    concepts_given_contexts = float(context_marginal @ entropy(phi))
+    contexts_given_scenes = float(entropy(theta).mean())
+    return rho * concepts_given_contexts + (1.0 - rho) * contexts_given_scenes
+
+
+def average_log_likelihood(related_concept_probabilities: Sequence[Sequence[float]], floor: float = 1e-12) -> float:
+    """l̂ of Eq. 7: the mean log-probability of the concepts related to each observation.
+
+    ``related_concept_probabilities[n]`` holds P(c | x_n, σ) for every c in C^{n+},
+    the concepts related to observation n. Eq. 7 divides by N|C^{n+}|; as |C^{n+}|
+    differs between observations, each observation's log-probabilities are averaged
+    first and those averages are then averaged over the N observations, so every
+    observation weighs the same. Probabilities below ``floor`` count as ``floor``:
+    a single zero would otherwise make l̂ = −∞ and hide every other difference.
+    """
+    if len(related_concept_probabilities) == 0:
+        raise InvalidInputError("related_concept_probabilities", "needs at least one observation")
+    means = []
+    for n, probabilities in enumerate(related_concept_probabilities):
+        p = np.asarray(probabilities, dtype=float)
+        if p.ndim != 1 or p.shape[0] == 0:
+            raise InvalidInputError(f"related_concept_probabilities[{n}]", "needs at least one related concept")
+        if not np.all((p >= 0.0) & (p <= 1.0)):
+            raise InvalidInputError(f"related_concept_probabilities[{n}]", "probabilities must lie in [0, 1]")
+        means.append(np.log(np.maximum(p, floor)).mean())
+    return float(np.mean(means))

@@ -1,0 +1,232 @@
+"""Incremental-LDA (Algorithm 2): K selection, online updates, state, bad input."""
+
+from __future__ import annotations
+
+import copy
+from functools import cache
+
+import numpy as np
+import pytest
+
+from core.context import ContextModelState, IncrementalLDA, SceneUpdate
+from core.errors import InvalidInputError
+from core.world import WorldConfig, generate_scenes
+
+# Online tests use a small window so that growth checks stay cheap.
+ONLINE = {"birth_window": 40, "birth_check_interval": 10}
+
+
+@cache
+def _paper_scenes(n: int, seed: int, with_verbs: bool = True) -> tuple[tuple[str, ...], ...]:
+    return tuple(tuple(scene.tokens(with_verbs)) for scene in generate_scenes(WorldConfig.paper(), n, seed))
+
+
+def _contexts_present(config: WorldConfig, n: int, seed: int) -> int:
+    return len({c for scene in generate_scenes(config, n, seed) for c in scene.object_contexts})
+
+
+def test_growth_stops_at_three_contexts_on_the_paper_world() -> None:
+    found = [IncrementalLDA(seed=seed).fit(_paper_scenes(50, seed)).n_contexts for seed in range(10)]
+    assert sum(k == 3 for k in found) >= 9, found
+
+
+@pytest.mark.parametrize(("n_contexts", "n_scenes", "seeds", "hits"), [(2, 50, range(4), 3), (4, 100, range(3), 3)])
+def test_growth_finds_the_contexts_of_generic_worlds(n_contexts: int, n_scenes: int, seeds: range, hits: int) -> None:
+    found = []
+    for seed in seeds:
+        config = WorldConfig.generic(n_contexts, seed)
+        scenes = [scene.tokens() for scene in generate_scenes(config, n_scenes, seed)]
+        found.append(IncrementalLDA(seed=seed).fit(scenes).n_contexts)
+    assert sum(k == n_contexts for k in found) >= hits, found
+
+
+def test_paper_rule_stops_at_three_without_verbs_and_hits_the_cap_with_them() -> None:
+    without_verbs = [
+        IncrementalLDA(seed=seed, k_selection="paper").fit(_paper_scenes(50, seed, False)).n_contexts
+        for seed in range(5)
+    ]
+    assert sum(k == 3 for k in without_verbs) >= 4, without_verbs
+    capped = IncrementalLDA(seed=0, k_selection="paper", max_contexts=5).fit(_paper_scenes(50, 0))
+    assert capped.n_contexts == 5 and capped.context_cap_reached
+    assert capped.low_confidence_concepts()
+
+
+def test_max_contexts_caps_growth() -> None:
+    model = IncrementalLDA(seed=0, max_contexts=2).fit(_paper_scenes(50, 0))
+    assert model.n_contexts == 2 and model.context_cap_reached
+    with pytest.raises(InvalidInputError, match="^max_contexts"):
+        model.grow_context()
+    single = IncrementalLDA(seed=0, max_contexts=1).fit(_paper_scenes(20, 0))
+    assert single.n_contexts == 1
+    assert np.allclose(single.context_posterior(["cup", "plate"]), [1.0])
+
+
+def test_learned_contexts_separate_the_true_contexts() -> None:
+    scenes = generate_scenes(WorldConfig.paper(), 50, 3)
+    model = IncrementalLDA(seed=3).fit([scene.tokens() for scene in scenes])
+    predicted = [int(np.argmax(model.context_posterior(d))) for d in range(model.n_scenes)]
+    truth = [scene.object_contexts[0] for scene in scenes]
+    for context in set(truth):
+        labels = {p for p, t in zip(predicted, truth, strict=True) if t == context}
+        assert len(labels) == 1, (context, labels)
+    assert model.top_concepts(3)[0][0][1] >= model.top_concepts(3)[0][2][1]
+
+
+def _learn_online(model: IncrementalLDA, scenes: tuple[tuple[str, ...], ...]) -> list[SceneUpdate]:
+    return [model.learn_scene(scene) for scene in scenes]
+
+
+def test_online_learning_finds_three_contexts_and_keeps_invariants() -> None:
+    for seed in (0, 1):
+        model = IncrementalLDA(seed=seed, **ONLINE)
+        updates = _learn_online(model, _paper_scenes(60, seed))
+        model.check_invariants()
+        assert model.n_contexts == 3, [u.contexts_after for u in updates]
+
+
+def test_scene_updates_replay_the_model_exactly() -> None:
+    """A store that applies every SceneUpdate ends with the model's assignments and counts."""
+    model = IncrementalLDA(seed=5, **ONLINE)
+    vocabulary: list[str] = []
+    assignments: list[int] = []
+    n_kw: dict[tuple[int, int], int] = {}
+    for update in _learn_online(model, _paper_scenes(45, 5)):
+        assert update.word_ids.shape == update.assignments.shape
+        vocabulary.extend(update.vocabulary_additions)
+        assignments[len(assignments) :] = update.assignments.tolist()
+        for token, context in zip(update.reassigned_tokens, update.reassigned_contexts, strict=True):
+            assignments[token] = int(context)
+        for context, concept, count in update.changed_counts:
+            n_kw[int(context), int(concept)] = int(count)
+        assert update.rng_state == model.to_state().rng_state or update.scene_index < model.n_scenes - 1
+    state = model.to_state()
+    assert vocabulary == state.vocabulary
+    assert assignments == state.assignments.tolist()
+    stored = np.zeros_like(state.n_kw)
+    for (context, concept), count in n_kw.items():
+        stored[context, concept] = count
+    assert np.array_equal(stored, state.n_kw)
+
+
+def test_online_update_touches_a_bounded_number_of_earlier_tokens() -> None:
+    model = IncrementalLDA(seed=0, scene_sweeps=3, rejuvenation_tokens=16, **ONLINE)
+    for update in _learn_online(model, _paper_scenes(80, 2)):
+        if not update.growth_checked:
+            assert update.reassigned_tokens.shape[0] <= 3 * 16
+
+
+def test_unseen_concepts_extend_the_vocabulary_without_restart() -> None:
+    model = IncrementalLDA(["cup", "plate"], seed=0, **ONLINE)
+    model.learn_scene(["cup", "plate", "cup"])
+    update = model.learn_scene(["cup", "teapot", "spoon"])
+    assert update.vocabulary_additions == ("teapot", "spoon")
+    assert model.vocabulary == ("cup", "plate", "teapot", "spoon")
+    assert update.word_ids.tolist() == [0, 2, 3]
+    assert model.concept_given_context().shape == (model.n_contexts, 4)
+    model.check_invariants()
+
+
+def test_one_token_scenes_are_valid() -> None:
+    model = IncrementalLDA(seed=0, **ONLINE)
+    update = model.learn_scene(["ball"])
+    assert update.assignments.shape == (1,)
+    assert model.fit([["ball"], ["cup"]]).n_scenes == 2
+
+
+def test_restored_model_continues_bit_identically() -> None:
+    scenes = _paper_scenes(40, 7)
+    original = IncrementalLDA(seed=7, **ONLINE)
+    _learn_online(original, scenes[:25])
+    saved = copy.deepcopy(original.to_state())
+    restored = IncrementalLDA.from_state(saved)
+    for scene in scenes[25:]:
+        a, b = original.learn_scene(scene), restored.learn_scene(scene)
+        assert np.array_equal(a.assignments, b.assignments)
+        assert np.array_equal(a.changed_counts, b.changed_counts)
+    final_a, final_b = original.to_state(), restored.to_state()
+    assert np.array_equal(final_a.assignments, final_b.assignments)
+    assert final_a.rng_state == final_b.rng_state
+
+
+def test_same_seed_same_model() -> None:
+    scenes = _paper_scenes(30, 1)
+    a = IncrementalLDA(seed=4).fit(scenes).to_state()
+    b = IncrementalLDA(seed=4).fit(scenes).to_state()
+    assert np.array_equal(a.assignments, b.assignments) and a.n_contexts == b.n_contexts
+
+
+def test_inference_leaves_the_model_unchanged_and_is_seeded() -> None:
+    model = IncrementalLDA(seed=0).fit(_paper_scenes(50, 0))
+    before = model.to_state()
+    scene = ["cup", "cup", "plate", "round", "hard", "grasp", "move_left"]
+    posterior = model.infer_scene(scene, seed=3)
+    assert np.array_equal(posterior, model.infer_scene(scene, seed=3))
+    after = model.to_state()
+    assert np.array_equal(before.assignments, after.assignments) and before.rng_state == after.rng_state
+    assert posterior.shape == (3,) and posterior.max() > 0.9
+    assert np.allclose(model.infer_scene(["unheard_of"]), 1 / 3)
+    assert np.array_equal(model.context_posterior(scene, seed=3), posterior)
+
+
+def test_posteriors_are_distributions() -> None:
+    model = IncrementalLDA(seed=0).fit(_paper_scenes(30, 2))
+    assert model.context_posterior(0).sum() == pytest.approx(1.0)
+    assert np.allclose(model.concept_given_context().sum(axis=1), 1.0)
+    assert 0.0 < model.entropy() < np.log(len(model.vocabulary))
+    assert np.isfinite(model.joint_log_likelihood())
+
+
+@pytest.mark.parametrize(
+    ("options", "field"),
+    [
+        ({"alpha": 0.0}, "alpha"),
+        ({"alpha": -1.0}, "alpha"),
+        ({"xi": 0}, "xi"),
+        ({"tau": 0.0}, "tau"),
+        ({"tau": 1.0}, "tau"),
+        ({"delta": -0.1}, "delta"),
+        ({"delta": 1.5}, "delta"),
+        ({"max_contexts": 0}, "max_contexts"),
+        ({"k_selection": "entropy"}, "k_selection"),
+        ({"likelihood_samples": 1}, "likelihood_samples"),
+        ({"inference_burn_in": 30}, "inference_burn_in"),
+        ({"seed": -1}, "seed"),
+    ],
+)
+def test_bad_hyperparameters_name_the_field(options: dict[str, object], field: str) -> None:
+    with pytest.raises(InvalidInputError) as error:
+        IncrementalLDA(**options)
+    assert error.value.field == field
+
+
+def test_bad_scenes_name_the_field() -> None:
+    model = IncrementalLDA()
+    with pytest.raises(InvalidInputError, match="^words"):
+        model.learn_scene([])
+    with pytest.raises(InvalidInputError, match="^words"):
+        model.learn_scene("cup")
+    with pytest.raises(InvalidInputError, match="^words"):
+        model.infer_scene(["cup", ""])
+    with pytest.raises(InvalidInputError, match=r"^scenes\[1\]"):
+        model.fit([["cup"], []])
+    with pytest.raises(InvalidInputError, match="^scenes"):
+        model.fit([])
+    with pytest.raises(InvalidInputError, match="^scene"):
+        model.context_posterior(0)
+    with pytest.raises(InvalidInputError, match="^seed"):
+        model.infer_scene(["cup"], seed=-3)
+    with pytest.raises(InvalidInputError, match="^scenes"):
+        model.grow_context()
+    assert model.n_scenes == 0
+
+
+def test_corrupted_state_is_refused() -> None:
+    model = IncrementalLDA(seed=0, **ONLINE)
+    _learn_online(model, _paper_scenes(5, 0))
+    state = model.to_state()
+    broken = ContextModelState(**{**state.__dict__, "n_kw": state.n_kw + 1})
+    with pytest.raises(InvalidInputError, match="state.n_kw"):
+        IncrementalLDA.from_state(broken)
+    wrong_offsets = ContextModelState(**{**state.__dict__, "doc_offsets": state.doc_offsets[:-1]})
+    with pytest.raises(InvalidInputError, match="state"):
+        IncrementalLDA.from_state(wrong_offsets)

@@ -1,0 +1,249 @@
+"""Context fed back into the concept webs (§IV-D, Eq. 6, Fig. 6(b)).
+
+A scene of several objects is interpreted in a loop until the webs and the
+context agree (docs/feedback.md gives the reasons at length):
+
+1. every object's concept web is settled on its perception (§III-B); the MAP
+   configurations give the objects' active concepts, together the scene's LDA
+   document (Table V);
+2. the context posterior θ = P(χ | scene) is folded in against the context model
+   (no learning: :meth:`IncrementalLDA.infer_scene`);
+3. P(c | χ) = Σ_k θ_k P(c | k): the posterior-weighted mixture of the contexts'
+   concept probabilities rather than those of the argmax context, because a
+   mixed scene (Table VI) has no single context and a mixture degrades
+   gracefully when θ is uncertain, where the argmax would commit to one guess;
+4. Eq. 6, P*(c) = σ P(c) + (1 − σ) P(c | χ), with P(c) the MRF-decided
+   probability of step 1, gives the in-context probabilities;
+5. each web is settled again with P* as its evidence (the "reiteration of the
+   concept webs"); its MAP configuration gives the object's new active
+   concepts, and the loop goes back to 2 until the scene's document no longer
+   changes.
+
+The document holds the MAP concepts that carry evidence: the noun, the
+adjectives and the verbs whose behaviour was applied (``applied``; every verb
+when it is None). A verb that was not applied is only the web's prediction of an
+affordance from the noun; counting it would repeat the noun's vote once per
+predicted behaviour (a box-like object would add 13 verbs against a cup's 5) and
+let one misperceived object outvote the rest of the scene.
+
+P(c) in Eq. 6 stays the web of step 1, settled on the perception: updating the
+web's own output again and again would count its clique evidence at every turn
+and drift towards 0 or 1 whatever the context. So the loop runs through the
+context only, and a pass that reproduces the previous document is an exact
+fixed point: every fold-in of one call uses the same ``seed``, so the same
+document always gets the same θ. Otherwise the loop stops when θ moves by less
+than ``tolerance``, or after ``max_iterations`` passes (``converged`` false).
+
+P(c | k), one row per context, follows the vocabulary's structure: φ_k
+restricted to the nouns and renormalised (an object has one noun), φ_k of each
+adjective pair renormalised over the pair, and a verb's probability of being
+active is its expected number of tokens per object of context k,
+φ_k(verb) / Σ_nouns φ_k(noun) (every object adds exactly one noun token and at
+most one token of each verb), clipped to 1. Contexts are normalised first and
+then mixed, so that θ weighs contexts, not contexts times their noun mass.
+
+The context has no opinion on a group (the nouns, one adjective pair, the
+verbs) of which its model has seen no token (a model that has learned no scene,
+or one learned without verbs): there P*(c) is the web's P(c), whatever σ.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from core.concept_web import ConceptWeb, WebInference
+from core.context.incremental import IncrementalLDA
+from core.errors import InvalidInputError
+from core.vocabulary import Vocabulary
+
+#: σ of Eq. 6 that the paper chooses from Fig. 9's interval [0.4, 0.5].
+PAPER_SIGMA = 0.5
+DEFAULT_TOLERANCE = 1e-6
+DEFAULT_MAX_ITERATIONS = 10
+
+
+@dataclass(frozen=True)
+class ContextConcepts:
+    """P(c | χ = k) per context, (K, n_concepts) in ``vocabulary.concepts`` order, and which
+    concepts the context has an opinion on (``informed``, (n_concepts,))."""
+
+    given_context: np.ndarray
+    informed: np.ndarray
+
+    def mixture(self, context_posterior: np.ndarray) -> np.ndarray:
+        """P(c | χ) = Σ_k θ_k P(c | k) of a scene with context posterior θ."""
+        return context_posterior @ self.given_context
+
+
+@dataclass(frozen=True)
+class FeedbackResult:
+    """One scene interpreted in context; arrays are (n_objects, n_concepts) in vocabulary order.
+
+    ``web`` is the concept web on the perception alone; ``in_context`` P*(c) of
+    Eq. 6 when the loop stopped (σ = 1 gives ``web``, σ = 0 the context's
+    P(c | χ)); ``in_context_web`` the webs settled on P*, whose decisions are the
+    paper's "in context" recognition (Table VII, Fig. 13). ``context_concepts``
+    is the scene's P(c | χ) (NaN where the context has no opinion),
+    ``active_concepts`` each object's words in the in-context scene document
+    (MAP concepts of its in-context web that carry evidence), and
+    ``iterations`` counts the passes (in-context settlings of the webs).
+    """
+
+    perception: np.ndarray
+    web: np.ndarray
+    in_context: np.ndarray
+    in_context_web: np.ndarray
+    context_posterior: np.ndarray
+    context_concepts: np.ndarray
+    active_concepts: tuple[tuple[str, ...], ...]
+    iterations: int
+    converged: bool
+
+
+def context_concepts(context_model: IncrementalLDA, vocabulary: Vocabulary) -> ContextConcepts:
+    """The context model's P(c | k) over ``vocabulary``, matched by concept name and
+    normalised by the vocabulary's structure (module docstring)."""
+    if not isinstance(context_model, IncrementalLDA):
+        raise InvalidInputError("context_model", f"expected an IncrementalLDA, got {type(context_model).__name__}")
+    if not isinstance(vocabulary, Vocabulary):
+        raise InvalidInputError("vocabulary", f"expected a Vocabulary, got {type(vocabulary).__name__}")
+    names = vocabulary.concepts
+    state = context_model.lda_state
+    given = np.zeros((state.n_contexts, len(names)))
+    informed = np.zeros(len(names), dtype=bool)
+    if state.n_tokens == 0:
+        return ContextConcepts(given, informed)
+    position = {name: i for i, name in enumerate(context_model.vocabulary)}
+    columns = np.array([position.get(name, -1) for name in names])
+    known, column = columns >= 0, np.maximum(columns, 0)
+    # A concept the model never met has the φ of a concept with no token.
+    unseen = state.xi / (state.n_k + state.vocab_size * state.xi)
+    phi = np.where(known, context_model.concept_given_context()[:, column], unseen[:, None])
+    seen = known & (state.n_kw.sum(axis=0)[column] > 0)
+    n_nouns, n_adjectives = len(vocabulary.nouns), len(vocabulary.adjectives)
+    nouns = np.arange(n_nouns)
+    groups = [nouns] + [n_nouns + np.array([2 * pair, 2 * pair + 1]) for pair in range(len(vocabulary.adjective_pairs))]
+    for group in groups:
+        if seen[group].any():
+            given[:, group] = phi[:, group] / phi[:, group].sum(axis=1, keepdims=True)
+            informed[group] = True
+    verbs = np.arange(n_nouns + n_adjectives, len(names))
+    if verbs.size and informed[nouns].any() and seen[verbs].any():
+        per_object = phi[:, verbs] / phi[:, nouns].sum(axis=1, keepdims=True)
+        given[:, verbs] = np.minimum(per_object, 1.0)
+        informed[verbs] = True
+    return ContextConcepts(given, informed)
+
+
+def contextual_feedback(
+    web: ConceptWeb,
+    context_model: IncrementalLDA,
+    perceptions: Any,
+    vocabulary: Vocabulary,
+    *,
+    applied: np.ndarray | None = None,
+    sigma: float = PAPER_SIGMA,
+    tolerance: float = DEFAULT_TOLERANCE,
+    max_iterations: int = DEFAULT_MAX_ITERATIONS,
+    seed: int = 0,
+) -> FeedbackResult:
+    """Interpret a scene's objects in context by iterating webs, context and Eq. 6 (§IV-D).
+
+    ``perceptions`` (n_objects, n_concepts) are the objects' perception
+    probabilities in ``vocabulary.concepts`` order (as :func:`core.prototypes.perceive`
+    gives them); ``applied`` (n_objects, n_verbs) marks the verbs whose behaviour
+    was applied (see :meth:`ConceptWeb.infer`). ``sigma`` = 1 is the web alone,
+    0 the context alone.
+    """
+    sigma, tolerance, max_iterations, seed = _checked_settings(sigma, tolerance, max_iterations, seed)
+    if not isinstance(web, ConceptWeb):
+        raise InvalidInputError("web", f"expected a ConceptWeb, got {type(web).__name__}")
+    if not isinstance(vocabulary, Vocabulary) or vocabulary.concepts != web.vocabulary.concepts:
+        raise InvalidInputError("vocabulary", "must be the Vocabulary the concept web was fitted on")
+    perceptions = _checked_perceptions(perceptions, len(vocabulary))
+    table = context_concepts(context_model, vocabulary)
+    settled = web.infer_many(perceptions, applied=applied)
+    plain = _marginals(settled)
+    evidence = np.ones(perceptions.shape, dtype=bool)
+    if applied is not None:
+        evidence[:, len(vocabulary.nouns) + len(vocabulary.adjectives) :] = np.asarray(applied, dtype=bool)
+    document = _document(settled, evidence, vocabulary)
+    theta = context_model.infer_scene(_words(document), seed=seed)
+    converged = False
+    for iteration in range(1, max_iterations + 1):
+        context = table.mixture(theta)
+        in_context = np.where(table.informed, sigma * plain + (1.0 - sigma) * context, plain)
+        settled = web.infer_many(in_context, applied=applied)
+        settled_document = _document(settled, evidence, vocabulary)
+        if settled_document == document:
+            converged = True
+            break
+        settled_theta = context_model.infer_scene(_words(settled_document), seed=seed)
+        if np.abs(settled_theta - theta).max() < tolerance:
+            converged = True
+            break
+        document, theta = settled_document, settled_theta
+    return FeedbackResult(
+        perception=perceptions,
+        web=plain,
+        in_context=in_context,
+        in_context_web=_marginals(settled),
+        context_posterior=theta,
+        context_concepts=np.where(table.informed, context, np.nan),
+        active_concepts=settled_document,
+        iterations=iteration,
+        converged=converged,
+    )
+
+
+def _marginals(settled: list[WebInference]) -> np.ndarray:
+    return np.array([inference.probabilities for inference in settled])
+
+
+def _document(settled: list[WebInference], evidence: np.ndarray, vocabulary: Vocabulary) -> tuple[tuple[str, ...], ...]:
+    """Each object's words of the scene's LDA document (Table V): its MAP concepts that carry evidence."""
+    return tuple(
+        tuple(vocabulary.concepts[i] for i in np.flatnonzero(inference.map_configuration & row))
+        for inference, row in zip(settled, evidence, strict=True)
+    )
+
+
+def _words(document: tuple[tuple[str, ...], ...]) -> list[str]:
+    return [word for words in document for word in words]
+
+
+def _checked_settings(sigma: Any, tolerance: Any, max_iterations: Any, seed: Any) -> tuple[float, float, int, int]:
+    def is_real(value: Any) -> bool:
+        return (
+            not isinstance(value, bool)
+            and isinstance(value, (int, float, np.integer, np.floating))
+            and bool(np.isfinite(value))
+        )
+
+    def is_integer(value: Any) -> bool:
+        return not isinstance(value, bool) and isinstance(value, (int, np.integer))
+
+    if not (is_real(sigma) and 0.0 <= sigma <= 1.0):
+        raise InvalidInputError("sigma", f"σ of Eq. 6 must lie in [0, 1], got {sigma!r}")
+    if not (is_real(tolerance) and tolerance > 0.0):
+        raise InvalidInputError("tolerance", f"must be a positive number, got {tolerance!r}")
+    if not (is_integer(max_iterations) and max_iterations >= 1):
+        raise InvalidInputError("max_iterations", f"must be an integer >= 1, got {max_iterations!r}")
+    if not (is_integer(seed) and seed >= 0):
+        raise InvalidInputError("seed", f"must be an integer >= 0, got {seed!r}")
+    return float(sigma), float(tolerance), int(max_iterations), int(seed)
+
+
+def _checked_perceptions(perceptions: Any, n_concepts: int) -> np.ndarray:
+    try:
+        array = np.array(perceptions, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidInputError("perceptions", "must be a numeric (n_objects, n_concepts) array") from None
+    if array.ndim != 2 or array.shape[0] < 1 or array.shape[1] != n_concepts:
+        raise InvalidInputError("perceptions", f"expected shape (n_objects >= 1, {n_concepts}), got {array.shape}")
+    if not np.isfinite(array).all() or (array < 0.0).any() or (array > 1.0).any():
+        raise InvalidInputError("perceptions", "probabilities must be finite and lie in [0, 1]")
+    return array

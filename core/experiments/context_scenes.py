@@ -1,0 +1,97 @@
+"""What the context experiments share (Figs. 9, 12, 13, 14): features, a context model, test scenes.
+
+- **Features** of an object are extracted once per process
+  (:func:`object_features`): recording and extracting the 60 objects is the
+  slowest step of every experiment, and several experiments (and their tests)
+  use the same objects.
+- **The context model** (:func:`train_context_model`) is Incremental-LDA learned
+  in batch from pure-context scenes of the *training* objects (§V: a context
+  drawn uniformly, 3–5 of its objects), each object adding its labelled noun,
+  adjectives and applicable verbs (``Scene.tokens``): the robot learns contexts
+  from scenes of objects it was taught, and the test objects stay unseen. K is
+  found by the model (its default birth-move rule).
+- **Test scenes** (:func:`pure_context_scenes`): the test objects grouped by the
+  context of their noun, shuffled, and cut into scenes of at most 5 objects of
+  balanced sizes (7 objects give 4 + 3). Every test object is in exactly one
+  scene, so each is evaluated once per draw; its companions are other *test*
+  objects, perceived like it, so no label helps the context. A context with
+  fewer than 3 test objects (``--quick``) gives a smaller scene.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from core.concept_web import ConceptWeb
+from core.context import IncrementalLDA
+from core.context.feedback import PAPER_SIGMA, contextual_feedback
+from core.features import recording_features
+from core.vocabulary import Vocabulary
+from core.world import World, WorldObject
+
+#: Pure-context training scenes the context model learns from (the paper's experiments use up to 50).
+TRAINING_SCENES = 50
+MAX_OBJECTS_PER_SCENE = 5
+
+Features = tuple[np.ndarray, dict[str, np.ndarray]]
+_FEATURES: dict[tuple[str, int, int, str], Features] = {}
+
+
+def object_features(world: World, objects: Sequence[WorldObject], seed: int) -> dict[str, Features]:
+    """Entity vector e and effect vectors f of each object's recording from ``seed``, by object id.
+
+    Memoised per (world name, world seed, recording seed, object): a recording
+    depends on nothing else (``World.recordings`` gives every object its own stream).
+    """
+    prefix = (world.config.name, world.seed, int(seed))
+    missing = [obj for obj in objects if (*prefix, obj.object_id) not in _FEATURES]
+    for object_id, recording in world.recordings(missing, seed=seed).items() if missing else ():
+        _FEATURES[(*prefix, object_id)] = recording_features(recording)
+    return {obj.object_id: _FEATURES[(*prefix, obj.object_id)] for obj in objects}
+
+
+def train_context_model(
+    world: World, train: Sequence[WorldObject], rng: np.random.Generator, n_scenes: int = TRAINING_SCENES
+) -> IncrementalLDA:
+    """Incremental-LDA fitted on ``n_scenes`` pure-context scenes of the training objects."""
+    scenes = world.scenes(n_scenes, seed=rng, objects=train)
+    return IncrementalLDA(seed=int(rng.integers(2**31))).fit([scene.tokens(with_verbs=True) for scene in scenes])
+
+
+def context_of(world: World, obj: WorldObject) -> str:
+    """The context an object's noun occurs in (the first, for a noun of several contexts)."""
+    return world.config.contexts_of(obj.noun)[0]
+
+
+def pure_context_scenes(world: World, objects: Sequence[WorldObject], rng: np.random.Generator) -> list[np.ndarray]:
+    """Indices into ``objects`` of each scene: every object once, with others of its context."""
+    contexts = [context_of(world, obj) for obj in objects]
+    scenes = []
+    for name in dict.fromkeys(contexts):
+        members = rng.permutation([i for i, context in enumerate(contexts) if context == name])
+        scenes += np.array_split(members, -(-len(members) // MAX_OBJECTS_PER_SCENE))
+    return scenes
+
+
+def in_context_probabilities(
+    web: ConceptWeb,
+    context_model: IncrementalLDA,
+    vocabulary: Vocabulary,
+    perception: np.ndarray,
+    applied: np.ndarray,
+    scenes: Sequence[np.ndarray],
+    *,
+    sigma: float = PAPER_SIGMA,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """P*(c) of Eq. 6 and the in-context webs' P(c) of every object, each (n_objects, n_concepts),
+    every object interpreted in its scene (``core.context.feedback``)."""
+    eq_6, settled = np.empty_like(perception), np.empty_like(perception)
+    for members in scenes:
+        feedback = contextual_feedback(
+            web, context_model, perception[members], vocabulary, applied=applied[members], sigma=sigma, seed=seed
+        )
+        eq_6[members], settled[members] = feedback.in_context, feedback.in_context_web
+    return eq_6, settled

@@ -11,4 +11,13 @@ The CLI (``contextweb experiment NAME``) and the report both go through
 from __future__ import annotations
 
 #: Experiment name -> module path. Modules import lazily: numba compiles on first use.
-EXPERIMENTS: dict[str, str] = {}
+EXPERIMENTS: dict[str, str] = {
+    "contexts": "core.experiments.contexts",
+    "convergence": "core.experiments.convergence",
+    "mixed": "core.experiments.mixed",
+    "recognition": "core.experiments.recognition",
+    "planning": "core.experiments.planning",
+    "sigma": "core.experiments.sigma",
+    "noise": "core.experiments.noise",
+    "raw-vs-web": "core.experiments.raw_vs_web",
+}

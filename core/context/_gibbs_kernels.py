@@ -292,3 +292,101 @@ def reassign_tokens(
         n_wk[w, new] += 1
         n_k[new] += 1
         n_dk[d, new] += 1
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _count_block(
+    block: np.ndarray, n_block: int, d: int, k: int, change: int,
+    words: np.ndarray, n_wk: np.ndarray, n_k: np.ndarray, n_dk: np.ndarray,
+) -> None:  # fmt: skip
+    """Add ``change`` to the counts of the first ``n_block`` tokens of ``block`` in context k."""
+    for j in range(n_block):
+        w = words[block[j]]
+        n_wk[w, k] += change
+        n_k[k] += change
+        n_dk[d, k] += change
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _block_log_weight(
+    block: np.ndarray, n_block: int, d: int, k: int,
+    words: np.ndarray, n_wk: np.ndarray, n_k: np.ndarray, n_dk: np.ndarray,
+    alpha: float, xi: float, v_xi: float,
+) -> float:  # fmt: skip
+    """log P(whole block in context k | every other token), up to a term common to every k:
+    the block's tokens, uncounted, join k one by one and Eq. 5's numerators multiply up
+    (the collapsed Dirichlet-multinomial terms of k and of scene d). The tokens stay counted in k."""
+    log_weight = 0.0
+    weight = 1.0  # a running product, moved into the log before it can under- or overflow: few logs
+    for j in range(n_block):
+        w = words[block[j]]
+        weight *= (n_wk[w, k] + xi) / (n_k[k] + v_xi) * (n_dk[d, k] + alpha)
+        if not 1e-200 < weight < 1e200:
+            log_weight += math.log(weight)
+            weight = 1.0
+        n_wk[w, k] += 1
+        n_k[k] += 1
+        n_dk[d, k] += 1
+    return log_weight + math.log(weight)
+
+
+@numba.njit(cache=True, nogil=True)
+def split_scenes(
+    words: np.ndarray,
+    z: np.ndarray,
+    doc_offsets: np.ndarray,
+    scene_order: np.ndarray,
+    previous_context: np.ndarray,
+    anchored: np.ndarray,
+    n_wk: np.ndarray,
+    n_k: np.ndarray,
+    n_dk: np.ndarray,
+    new_context: int,
+    alpha: float,
+    xi: float,
+    vocab_size: int,
+    uniforms: np.ndarray,
+) -> None:
+    """Restricted blocked Gibbs scans between each scene's previous context and the new one.
+
+    At every visit of a scene ``d`` (``scene_order`` lists one visit per scene per scan),
+    its block is its tokens in ``previous_context[d]`` or in ``new_context`` that are not
+    ``anchored`` (one flag per token of the corpus). The whole block goes to one of the two
+    contexts, drawn from their exact collapsed probabilities given every other token
+    (``uniforms``: one number per visit); the scene's other tokens stay where they are.
+    """
+    v_xi = vocab_size * xi
+    longest = 0
+    for d in range(doc_offsets.shape[0] - 1):
+        longest = max(longest, doc_offsets[d + 1] - doc_offsets[d])
+    block = np.empty(longest, dtype=np.int64)
+    for visit in range(scene_order.shape[0]):
+        d = scene_order[visit]
+        previous = previous_context[d]
+        n_block = 0
+        for i in range(doc_offsets[d], doc_offsets[d + 1]):
+            k = z[i]
+            if not anchored[i] and (k == previous or k == new_context):
+                block[n_block] = i
+                n_block += 1
+                n_wk[words[i], k] -= 1
+                n_k[k] -= 1
+                n_dk[d, k] -= 1
+        if n_block == 0:
+            continue
+        stay = _block_log_weight(block, n_block, d, previous, words, n_wk, n_k, n_dk, alpha, xi, v_xi)
+        _count_block(block, n_block, d, previous, -1, words, n_wk, n_k, n_dk)
+        move = _block_log_weight(block, n_block, d, new_context, words, n_wk, n_k, n_dk, alpha, xi, v_xi)
+        # P(move) = 1 / (1 + exp(stay - move)), in the form that stays finite for any difference.
+        difference = stay - move
+        if difference > 0.0:
+            p_move = math.exp(-difference) / (1.0 + math.exp(-difference))
+        else:
+            p_move = 1.0 / (1.0 + math.exp(difference))
+        target = new_context
+        if uniforms[visit] >= p_move:
+            target = previous
+            _count_block(block, n_block, d, new_context, -1, words, n_wk, n_k, n_dk)
+            _count_block(block, n_block, d, previous, 1, words, n_wk, n_k, n_dk)
+        for j in range(n_block):
+            z[block[j]] = target

@@ -255,18 +255,60 @@ class LDAState:
         )
 
     def grow_k_incrementally(
-        self, low_confidence: np.ndarray, delta: float, rng: np.random.Generator, first_doc: int = 0
+        self,
+        low_confidence: np.ndarray,
+        delta: float,
+        rng: np.random.Generator,
+        first_doc: int = 0,
+        *,
+        split_scans: int = 0,
     ) -> None:
         """Algorithm 3's start: open context K from the K − 1 solution.
 
         Among the tokens of scenes ``first_doc:``, those flagged in ``low_confidence``
         (one flag per such token) move to the new context; every other one keeps its
         context, except that it moves too with probability δ (to escape local optima).
+
+        With ``split_scans`` > 0, that many restricted blocked Gibbs scans over the
+        scenes follow (a split move's launch, Jain & Neal 2004): each scene in turn
+        sends its unflagged tokens that sit in its K − 1 context or in K, as one block,
+        to one of those two contexts, drawn from their exact collapsed probabilities;
+        the flagged tokens stay in K as the split's anchor. Scenes of a merged context
+        thus move whole instead of one token at a time against α (docs/context.md,
+        "Fig. 10").
         """
+        if isinstance(split_scans, bool) or not isinstance(split_scans, int | np.integer) or split_scans < 0:
+            raise InvalidInputError("split_scans", f"must be an integer >= 0, got {split_scans!r}")
+        previous_context = self.n_dk[first_doc:].argmax(axis=1)
         new_context = self.add_context()
         tokens = np.arange(self._offsets[first_doc], self.n_tokens, dtype=np.int64)
         moved = low_confidence | (rng.random(tokens.shape[0]) < delta)
         self.reassign(tokens[moved], np.full(int(moved.sum()), new_context, dtype=np.int32))
+        if split_scans:
+            self._split_scenes(low_confidence, previous_context, int(split_scans), rng, first_doc)
+
+    def _split_scenes(
+        self,
+        anchored: np.ndarray,
+        previous_context: np.ndarray,
+        scans: int,
+        rng: np.random.Generator,
+        first_doc: int,
+    ) -> None:
+        """``scans`` restricted blocked scans of scenes ``first_doc:`` between each scene's
+        ``previous_context`` (its dominant context before K opened) and the last context,
+        scenes in a fresh random order per scan; ``anchored`` flags tokens that stay put."""
+        n_scenes = self.n_documents - first_doc
+        order = np.concatenate([first_doc + rng.permutation(n_scenes) for _ in range(scans)])
+        previous = np.zeros(self.n_documents, dtype=np.int64)
+        previous[first_doc:] = previous_context
+        flags = np.zeros(self.n_tokens, dtype=np.bool_)
+        flags[self._offsets[first_doc] :] = anchored
+        kernels.split_scenes(
+            self._words, self._z, self._offsets[: self.n_documents + 1], order, previous, flags,
+            self._n_wk, self._n_k, self._n_dk, self.n_contexts - 1, self.alpha, self.xi, self.vocab_size,
+            rng.random(order.shape[0]),
+        )  # fmt: skip
 
     def remove_last_context(self) -> None:
         """Close context K, which must hold no token."""

@@ -1,4 +1,8 @@
-"""The ``contextweb`` command line: one entry point, one subcommand per job."""
+"""The ``contextweb`` command line: one entry point, one subcommand per job.
+
+Only the chosen command's parser is built, so ``contextweb serve`` does not
+import the experiments (matplotlib, every numba module) it never runs.
+"""
 
 from __future__ import annotations
 
@@ -6,24 +10,23 @@ import argparse
 import importlib
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
-
-from core.experiments import EXPERIMENTS
 
 
-def _add_experiment_parser(subparsers: Any) -> None:
-    experiment = subparsers.add_parser("experiment", help="run one of the paper's experiments")
-    names = experiment.add_subparsers(dest="experiment", required=True, metavar="NAME")
+def _build_experiment(parser: argparse.ArgumentParser) -> None:
+    from core.experiments import EXPERIMENTS
+
+    names = parser.add_subparsers(dest="experiment", required=True, metavar="NAME")
     for name, module_path in EXPERIMENTS.items():
         module = importlib.import_module(module_path)
-        parser = names.add_parser(name, help=(module.__doc__ or "").strip().splitlines()[0] if module.__doc__ else None)
-        parser.add_argument("--out", type=Path, default=Path("reports") / name, help="folder for the CSV and PNG files")
-        parser.add_argument("--json", action="store_true", help="print the JSON summary on stdout")
-        parser.add_argument("--quick", action="store_true", help="a small size, for tests")
-        parser.add_argument("--seed", type=int, default=0, help="seed of every random choice")
-        module.add_arguments(parser)
-        parser.set_defaults(handler=_run_experiment, module=module)
+        experiment = names.add_parser(name, help=(module.__doc__ or name).strip().splitlines()[0])
+        experiment.add_argument("--out", type=Path, default=Path("reports") / name, help="folder for the CSV and PNG files")
+        experiment.add_argument("--json", action="store_true", help="print the JSON summary on stdout")
+        experiment.add_argument("--quick", action="store_true", help="a small size, for tests")
+        experiment.add_argument("--seed", type=int, default=0, help="seed of every random choice")
+        module.add_arguments(experiment)
+        experiment.set_defaults(handler=_run_experiment, module=module)
 
 
 def _run_experiment(args: argparse.Namespace) -> int:
@@ -38,15 +41,84 @@ def _run_experiment(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="contextweb", description=__doc__)
-    subparsers = parser.add_subparsers(dest="command", required=True)
-    _add_experiment_parser(subparsers)
+def _build_serve(parser: argparse.ArgumentParser) -> None:
+    from app import serve
+
+    serve.add_serve_arguments(parser)
+    parser.set_defaults(handler=serve.run_serve)
+
+
+def _build_migrate(parser: argparse.ArgumentParser) -> None:
+    from app import serve
+
+    parser.set_defaults(handler=serve.run_migrate)
+
+
+def _build_bridge(parser: argparse.ArgumentParser) -> None:
+    tools = parser.add_subparsers(dest="tool", required=True, metavar="TOOL")
+    for name in ("simulate", "replay"):
+        module = importlib.import_module(f"bridge.{name}")
+        tool = tools.add_parser(name, help=(module.__doc__ or name).strip().splitlines()[0])
+        module.add_arguments(tool)
+        tool.set_defaults(handler=module.run)
+
+
+def _build_report(parser: argparse.ArgumentParser) -> None:
+    from core.experiments import report
+
+    report.add_arguments(parser)
+    parser.set_defaults(handler=report.run)
+
+
+def _build_prototypes(parser: argparse.ArgumentParser) -> None:
+    actions = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
+    show = actions.add_parser("show", help="fit the prototypes on the paper world's training objects and print Table VIII")
+    show.add_argument("--seed", type=int, default=0, help="seed of the world, its recordings and the clustering")
+    show.add_argument("--method", choices=["rgng", "kmeans"], default="rgng", help="clustering in the mean-variance plane")
+    show.set_defaults(handler=_show_prototypes)
+
+
+def _show_prototypes(args: argparse.Namespace) -> int:
+    from core.experiments.context_scenes import object_features
+    from core.experiments.recognition import training_data
+    from core.prototypes import fit_prototypes, format_prototype_table
+    from core.world import World
+
+    world = World.paper(seed=args.seed)
+    features = object_features(world, world.train_objects, args.seed)
+    prototypes = fit_prototypes(
+        world.vocabulary, *training_data(world.train_objects, features), method=args.method, seed=args.seed
+    )
+    print(format_prototype_table(prototypes))
+    return 0
+
+
+#: Command -> (help, builder of its parser). A builder imports what its command needs.
+COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
+    "serve": ("run the web service (migrates the database first)", _build_serve),
+    "migrate": ("bring the database to the latest schema", _build_migrate),
+    "experiment": ("run one of the paper's experiments", _build_experiment),
+    "report": ("run every experiment and write the reproduction report", _build_report),
+    "prototypes": ("the concept prototypes of Table VIII", _build_prototypes),
+    "bridge": ("feed a running service: simulate the iCub world, replay recordings", _build_bridge),
+}
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser with every command listed and ``command``'s own options built."""
+    parser = argparse.ArgumentParser(prog="contextweb", description=__doc__.splitlines()[0])
+    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (help_text, build) in COMMANDS.items():
+        subparser = subparsers.add_parser(name, help=help_text, description=help_text)
+        if name == command:
+            build(subparser)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    command = next((word for word in argv if not word.startswith("-")), None)
+    args = build_parser(command).parse_args(argv)
     return int(args.handler(args) or 0)
 
 

@@ -1,0 +1,43 @@
+"""The ``contextweb`` command line: every command listed, only the chosen one built."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from app.cli import COMMANDS, build_parser, main
+
+
+def test_help_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    for name in COMMANDS:
+        assert name in out
+
+
+def test_serving_does_not_import_the_experiments() -> None:
+    code = (
+        "import sys; from app.cli import build_parser; build_parser('serve');"
+        "print(sorted(m for m in ('matplotlib', 'core.experiments.recognition', 'core.context') if m in sys.modules))"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "[]"
+
+
+def test_unknown_experiment_is_refused_with_the_known_names(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["experiment", "telepathy"])
+    assert exit_info.value.code == 2
+    assert "invalid choice: 'telepathy'" in capsys.readouterr().err
+
+
+def test_experiment_prints_its_json_summary(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:  # noqa: ANN001
+    assert main(["experiment", "mixed", "--quick", "--json", "--out", str(tmp_path)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary == json.loads((tmp_path / "summary.json").read_text())
+    assert build_parser("experiment").parse_args(["experiment", "mixed"]).seed == 0

@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.cache/numba
 export MPLBACKEND ?= Agg
 
-.PHONY: run test install dev bench report clean
+.PHONY: run test install dev browser bench report clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -25,7 +25,13 @@ dev: $(VENV)/.installed-dev
 run: $(VENV)/.installed
 	$(BIN)/contextweb serve
 
-test: $(VENV)/.installed-dev
+# Debian's Chromium for the dashboard's browser test; where it cannot be installed the test skips and says why.
+browser:
+	@command -v chromium >/dev/null && command -v chromedriver >/dev/null || \
+	  { [ "$$(id -u)" = 0 ] && apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null; } || \
+	  echo "make: no chromium could be installed; the browser test will be skipped"
+
+test: $(VENV)/.installed-dev browser
 	$(BIN)/python -m pytest
 
 bench: $(VENV)/.installed-dev

@@ -1,0 +1,175 @@
+"""One error tree and one handler: every 4xx/5xx body is ``{"error", "detail", "field"}``.
+
+Routes raise :class:`ContextwebError` subclasses (and declare them in
+``responses=`` so the OpenAPI schema shows them); core's
+:class:`~core.errors.InvalidInputError`, pydantic's request validation errors and
+Starlette's routing errors are rendered in the same shape. There is deliberately
+no catch-all: an unexpected exception stays a visible 500 and a logged traceback.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from app.schemas.common import UNION_TAGS, ErrorRead
+from core.errors import InvalidInputError
+
+
+class ContextwebError(Exception):
+    """Base of every error the service answers on purpose."""
+
+    error = "contextweb_error"
+    status_code = 500
+
+    def __init__(self, message: str, status_code: int | None = None, *, field: str | None = None) -> None:
+        super().__init__(message)
+        self.message = message
+        self.status_code = status_code or type(self).status_code
+        self.field = field
+
+    def headers(self) -> dict[str, str] | None:
+        return None
+
+
+class InvalidInput(ContextwebError):
+    error = "invalid_input"
+    status_code = 422
+
+    def __init__(self, field: str, problem: str) -> None:
+        super().__init__(problem, field=field)
+
+
+class ModelNotFound(ContextwebError):
+    error = "model_not_found"
+    status_code = 404
+
+    def __init__(self, model_id: str) -> None:
+        super().__init__(f"no model {model_id!r}", field="path.model_id")
+
+
+class SceneNotFound(ContextwebError):
+    error = "scene_not_found"
+    status_code = 404
+
+    def __init__(self, model_id: str, scene_id: int) -> None:
+        super().__init__(f"model {model_id!r} has no scene {scene_id}", field="path.scene_id")
+
+
+class ModelNotFitted(ContextwebError):
+    error = "model_not_fitted"
+    status_code = 409
+
+    def __init__(self, model_id: str, what: str) -> None:
+        super().__init__(f"model {model_id!r} has no fitted {what}: post training objects and fit first")
+
+
+class IdempotencyKeyReused(ContextwebError):
+    error = "idempotency_key_reused"
+    status_code = 422
+
+    def __init__(self, key: str) -> None:
+        super().__init__(
+            f"Idempotency-Key {key!r} was already used with a different body", field="header.Idempotency-Key"
+        )
+
+
+class Unauthorized(ContextwebError):
+    error = "unauthorized"
+    status_code = 401
+
+    def __init__(self) -> None:
+        super().__init__("a valid API key is required in the X-API-Key header", field="header.X-API-Key")
+
+    def headers(self) -> dict[str, str]:
+        return {"WWW-Authenticate": "ApiKey"}
+
+
+class Forbidden(ContextwebError):
+    error = "forbidden"
+    status_code = 403
+
+    def __init__(self) -> None:
+        super().__init__("the read key cannot use a write route", field="header.X-API-Key")
+
+
+class PayloadTooLarge(ContextwebError):
+    error = "payload_too_large"
+    status_code = 413
+
+    def __init__(self, limit: int) -> None:
+        super().__init__(f"the request body exceeds {limit} bytes (CONTEXTWEB_MAX_BODY_BYTES)", field="body")
+
+
+class NotReady(ContextwebError):
+    error = "not_ready"
+    status_code = 503
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+
+
+def error_response(error: str, detail: str, status_code: int, field: str | None = None, **kwargs: Any) -> JSONResponse:
+    body = ErrorRead(error=error, detail=detail, field=field).model_dump()
+    return JSONResponse(body, status_code=status_code, **kwargs)
+
+
+def error_responses(*errors: type[ContextwebError]) -> dict[int | str, dict[str, Any]]:
+    """The ``responses=`` entry of a route that may raise these errors (for OpenAPI)."""
+    statuses: dict[int, list[str]] = {}
+    for error_type in errors:
+        statuses.setdefault(error_type.status_code, []).append(error_type.error)
+    return {
+        status: {"model": ErrorRead, "description": " or ".join(names)} for status, names in sorted(statuses.items())
+    }
+
+
+def field_name(location: tuple[Any, ...] | list[Any]) -> str:
+    """``("body", "objects", 0, "features", "entity")`` -> ``objects[0].features.entity``."""
+    parts = list(location)
+    if parts and parts[0] == "body":
+        parts = parts[1:]
+    name = ""
+    for part in parts:
+        if part in UNION_TAGS:
+            continue
+        if isinstance(part, int):
+            name += f"[{part}]"
+        else:
+            name += f".{part}" if name else str(part)
+    return name or "body"
+
+
+async def _contextweb_error(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, ContextwebError)
+    return error_response(exc.error, exc.message, exc.status_code, exc.field, headers=exc.headers())
+
+
+async def _invalid_input(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, InvalidInputError)
+    return error_response(InvalidInput.error, exc.problem, 422, exc.field)
+
+
+async def _request_validation(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, RequestValidationError)
+    errors = exc.errors()
+    first = errors[0] if errors else {"loc": ("body",), "msg": "invalid request"}
+    detail = "; ".join(f"{field_name(e['loc'])}: {e['msg']}" for e in errors[:5])
+    return error_response(InvalidInput.error, detail, 422, field_name(first["loc"]))
+
+
+async def _http_error(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, StarletteHTTPException)
+    error = {404: "not_found", 405: "method_not_allowed", 413: PayloadTooLarge.error}.get(exc.status_code, "http_error")
+    return error_response(error, str(exc.detail), exc.status_code, headers=getattr(exc, "headers", None))
+
+
+def add_exception_handlers(app: FastAPI) -> None:
+    app.add_exception_handler(ContextwebError, _contextweb_error)
+    app.add_exception_handler(InvalidInputError, _invalid_input)
+    app.add_exception_handler(RequestValidationError, _request_validation)
+    app.add_exception_handler(StarletteHTTPException, _http_error)

@@ -1,0 +1,107 @@
+"""The app factory: ``create_app(settings)`` builds the FastAPI app; its lifespan owns the state.
+
+On start the lifespan creates the engine and the session makers, migrates the
+database to the latest schema, reloads every model into memory and binds the
+websocket hub to the event loop; on stop it closes the dashboards' sockets and
+disposes of the engine.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import TypedDict
+
+import anyio
+from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
+from prometheus_client import CollectorRegistry
+from prometheus_fastapi_instrumentator import Instrumentator
+
+from app.errors import InvalidInput, add_exception_handlers, error_responses
+from app.middleware import BodySizeLimit
+from app.registry import ModelRegistry
+from app.routers import contexts, health, models, plans, scenes, stream, training
+from app.settings import Settings
+from app.state import AppState
+from app.stream import StreamHub
+from storage.database import create_database_engine, create_session_makers
+from storage.migrations import upgrade_to_head
+
+logger = logging.getLogger("contextweb")
+
+#: The dashboard's built files (sources in frontend/, built with ``npm run build``).
+DASHBOARD_DIRECTORY = Path(__file__).resolve().parent / "static"
+
+API_DESCRIPTION = """\
+Context for robots, as a service: concept webs (MRF + loopy BP) and Incremental-LDA
+(Çelikkanat et al.). Each model learns the contexts of the scenes one robot posts,
+online, and answers every scene with its concept webs and context posterior.
+See docs/api.md for the request and response shapes, docs/stream.md for the websocket.
+"""
+
+
+class LifespanState(TypedDict):
+    contextweb: AppState
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """A new app for ``settings`` (read from the environment when omitted)."""
+    settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(_app: FastAPI) -> AsyncIterator[LifespanState]:
+        anyio.to_thread.current_default_thread_limiter().total_tokens = settings.worker_threads
+        state = await anyio.to_thread.run_sync(_start, settings)
+        state.hub.bind(asyncio.get_running_loop())
+        try:
+            yield {"contextweb": state}
+        finally:
+            state.hub.close_everyone("server shutting down")
+            state.engine.dispose()
+
+    app = FastAPI(
+        title="Contextweb",
+        version="1.0.0",
+        description=API_DESCRIPTION,
+        lifespan=lifespan,
+    )
+    add_exception_handlers(app)
+    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    app.include_router(health.router)
+    for router in (models.router, training.router, scenes.router, contexts.router, plans.router):
+        app.include_router(router, responses=error_responses(InvalidInput))
+    app.include_router(stream.router)
+    Instrumentator(registry=CollectorRegistry(), excluded_handlers=["/metrics"]).instrument(app).expose(
+        app, endpoint="/metrics", tags=["health"], summary="Prometheus metrics"
+    )
+    # Last: the dashboard at / must not shadow any API route.
+    app.mount("/", StaticFiles(directory=DASHBOARD_DIRECTORY, html=True), name="dashboard")
+    return app
+
+
+def _start(settings: Settings) -> AppState:
+    """Blocking start-up work, run off the event loop."""
+    engine = create_database_engine(
+        settings.resolved_database_url,
+        sqlite_synchronous=settings.sqlite_synchronous,
+        pool_size=settings.database_pool_size,
+    )
+    upgrade_to_head(engine)
+    read_sessions, write_sessions = create_session_makers(engine)
+    state = AppState(
+        settings=settings,
+        engine=engine,
+        read_sessions=read_sessions,
+        write_sessions=write_sessions,
+        registry=ModelRegistry(),
+        hub=StreamHub(settings.stream_queue_size),
+    )
+    with read_sessions() as session:
+        state.registry.load_all(session)
+    state.models_loaded = True
+    logger.info("%d model(s) loaded from %s", len(state.registry), engine.url.render_as_string())
+    return state

@@ -1,0 +1,51 @@
+"""Models: create, list, get, delete."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, status
+
+from app.deps import ModelDep, ReadAccess, StateDep, WriteAccess, WriteSessionDep, model_write
+from app.errors import Forbidden, InvalidInput, ModelNotFound, Unauthorized, error_responses
+from app.schemas.models import ModelCreate, ModelRead
+from app.services import models as model_service
+
+router = APIRouter(prefix="/v1/models", tags=["models"])
+_AUTH = (Unauthorized, Forbidden)
+
+
+@router.post(
+    "",
+    status_code=status.HTTP_201_CREATED,
+    summary="Create a model",
+    dependencies=[WriteAccess],
+    responses=error_responses(InvalidInput, *_AUTH),
+)
+def create_model(body: ModelCreate, session: WriteSessionDep, state: StateDep) -> ModelRead:
+    return model_service.model_read(model_service.create_model(session, state.registry, body))
+
+
+@router.get("", summary="List the models", dependencies=[ReadAccess], responses=error_responses(Unauthorized))
+async def list_models(state: StateDep) -> list[ModelRead]:
+    return [model_service.model_read(model) for model in state.registry.all()]
+
+
+@router.get(
+    "/{model_id}",
+    summary="Get a model: hyperparameters, K, vocabulary size, scene count",
+    dependencies=[ReadAccess],
+    responses=error_responses(ModelNotFound, Unauthorized),
+)
+async def get_model(model: ModelDep) -> ModelRead:
+    return model_service.model_read(model)
+
+
+@router.delete(
+    "/{model_id}",
+    status_code=status.HTTP_204_NO_CONTENT,
+    summary="Delete a model and everything it learned",
+    dependencies=[WriteAccess],
+    responses=error_responses(ModelNotFound, *_AUTH),
+)
+def delete_model(model: ModelDep, state: StateDep) -> None:
+    with model_write(state, model) as session:
+        model_service.delete_model(session, state.registry, state.hub, model)

@@ -1,0 +1,88 @@
+"""Scenes: learn one online, analyse one without learning, read the history."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Header, Path, Query, Response, status
+
+from app.deps import ModelDep, ReadAccess, ReadSessionDep, StateDep, WriteAccess, model_write
+from app.errors import (
+    Forbidden,
+    IdempotencyKeyReused,
+    InvalidInput,
+    ModelNotFitted,
+    ModelNotFound,
+    PayloadTooLarge,
+    SceneNotFound,
+    Unauthorized,
+    error_responses,
+)
+from app.schemas.common import Page
+from app.schemas.scenes import SceneCreate, SceneRead, SceneSummary
+from app.services import scenes as scene_service
+
+router = APIRouter(prefix="/v1/models/{model_id}", tags=["scenes"])
+
+IdempotencyKey = Annotated[
+    str | None,
+    Header(
+        alias="Idempotency-Key",
+        min_length=1,
+        max_length=200,
+        pattern=r"^[\x21-\x7e]+$",
+        description="Makes retries safe: the same key and body return the stored answer and change nothing.",
+    ),
+]
+_ANALYSIS_ERRORS = (InvalidInput, ModelNotFound, ModelNotFitted, PayloadTooLarge, Unauthorized)
+
+
+@router.post(
+    "/scenes",
+    status_code=status.HTTP_201_CREATED,
+    response_model=SceneRead,
+    summary="Learn a scene online and answer its analysis",
+    dependencies=[WriteAccess],
+    responses=error_responses(*_ANALYSIS_ERRORS, IdempotencyKeyReused, Forbidden),
+)
+def post_scene(body: SceneCreate, model: ModelDep, state: StateDep, idempotency_key: IdempotencyKey = None) -> Response:
+    with model_write(state, model) as session:
+        answer, replayed = scene_service.learn_scene(session, model, state.hub, body, idempotency_key)
+    headers = {"Idempotent-Replayed": "true"} if replayed else None
+    return Response(answer, status.HTTP_201_CREATED, headers, media_type="application/json")
+
+
+@router.post(
+    "/infer",
+    summary="Analyse a scene without learning it",
+    dependencies=[ReadAccess],
+    responses=error_responses(*_ANALYSIS_ERRORS),
+)
+def infer_scene(body: SceneCreate, model: ModelDep) -> SceneRead:
+    return scene_service.infer_scene(model, body)
+
+
+@router.get(
+    "/scenes",
+    summary="Scene history, in learning order",
+    dependencies=[ReadAccess],
+    responses=error_responses(ModelNotFound, Unauthorized),
+)
+def list_scenes(
+    model: ModelDep,
+    session: ReadSessionDep,
+    offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0,
+    limit: Annotated[int, Query(ge=1, le=500)] = 50,
+) -> Page[SceneSummary]:
+    return scene_service.scene_history(session, model, offset=offset, limit=limit)
+
+
+@router.get(
+    "/scenes/{scene_id}",
+    response_model=SceneRead,
+    summary="One scene's stored analysis and context posterior",
+    dependencies=[ReadAccess],
+    responses=error_responses(ModelNotFound, SceneNotFound, Unauthorized),
+)
+def get_scene(model: ModelDep, session: ReadSessionDep, scene_id: Annotated[int, Path(ge=0, le=2**31 - 1)]) -> Response:
+    return Response(scene_service.get_scene(session, model, scene_id), media_type="application/json")

@@ -1,0 +1,76 @@
+"""The bases every schema builds on, the error body and the page of a listing."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Generic, TypeVar
+
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag
+
+T = TypeVar("T")
+
+#: Tags of the two-shape unions below; they are left out of the field names of errors.
+AS_LIST, AS_MAP, AS_BASE64 = "as list", "as map", "as base64"
+UNION_TAGS = frozenset({AS_LIST, AS_MAP, AS_BASE64})
+
+
+def _shape(value: Any) -> str:
+    if isinstance(value, dict):
+        return AS_MAP
+    return AS_BASE64 if isinstance(value, str) else AS_LIST
+
+
+def list_or_map(names: Any, probabilities: Any) -> Any:
+    """``names | probabilities`` told apart by the JSON shape (array or object)."""
+    return Annotated[Annotated[names, Tag(AS_LIST)] | Annotated[probabilities, Tag(AS_MAP)], Discriminator(_shape)]
+
+
+def array_or_base64(array: Any, base64: Any) -> Any:
+    """``array | base64`` told apart by the JSON shape (array or string)."""
+    return Annotated[Annotated[array, Tag(AS_LIST)] | Annotated[base64, Tag(AS_BASE64)], Discriminator(_shape)]
+
+
+#: A probability in [0, 1].
+Probability = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
+#: A finite real number (NaN and ±inf are refused with a 422 naming the field).
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class ReadSchema(BaseModel):
+    """Base of the responses: built from ORM rows or service results."""
+
+    model_config = ConfigDict(from_attributes=True, protected_namespaces=())
+
+
+class RequestSchema(BaseModel):
+    """Base of the request bodies: unknown fields are a 422, not silently dropped."""
+
+    model_config = ConfigDict(extra="forbid", protected_namespaces=())
+
+
+class ErrorRead(ReadSchema):
+    """Every error body: a machine-readable ``error``, a sentence, and the offending field."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "error": "invalid_input",
+                    "detail": "objects[0].features.entity: List should have at least 91 items after validation, not 3",
+                    "field": "objects[0].features.entity",
+                }
+            ]
+        }
+    )
+
+    error: str = Field(description="Kind of error, e.g. `model_not_found`, `invalid_input`.")
+    detail: str = Field(description="What went wrong, for a human.")
+    field: str | None = Field(None, description="The request field at fault, when there is one.")
+
+
+class Page(ReadSchema, Generic[T]):
+    """One page of a listing, oldest first."""
+
+    items: list[T]
+    total: int = Field(description="Number of items in the whole listing.")
+    offset: int
+    limit: int

@@ -1,0 +1,46 @@
+"""Contexts: what Incremental-LDA discovered, each with its most probable concepts."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from app.schemas.common import ReadSchema
+from app.schemas.scenes import ConceptKind
+
+
+class ConceptProbability(ReadSchema):
+    name: str
+    kind: ConceptKind | None = Field(description="Null for a concept outside the vocabulary posted without a kind.")
+    probability: float = Field(description="P(c | χ) (φ of the context).")
+
+
+class ContextRead(ReadSchema):
+    context: int = Field(description="Index of the context, 0 … K-1.")
+    scene_count: int = Field(description="Learned scenes whose most probable context this is (current assignments).")
+    top_concepts: list[ConceptProbability]
+
+
+class ContextsRead(ReadSchema):
+    model_config = {
+        "json_schema_extra": {
+            "examples": [
+                {
+                    "model_id": "3f2c0b9e5d7a4e1f8a6b2c4d9e0f1a2b",
+                    "context_count": 1,
+                    "scene_count": 4,
+                    "contexts": [
+                        {
+                            "context": 0,
+                            "scene_count": 4,
+                            "top_concepts": [{"name": "cup", "kind": "noun", "probability": 0.21}],
+                        }
+                    ],
+                }
+            ]
+        }
+    }
+
+    model_id: str
+    context_count: int
+    scene_count: int
+    contexts: list[ContextRead]

@@ -1,0 +1,20 @@
+"""Probe answers."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from app.schemas.common import ReadSchema
+
+
+class HealthRead(ReadSchema):
+    model_config = {"json_schema_extra": {"examples": [{"status": "ok"}]}}
+
+    status: Literal["ok"]
+
+
+class ReadinessRead(ReadSchema):
+    model_config = {"json_schema_extra": {"examples": [{"status": "ready", "models_loaded": 2}]}}
+
+    status: Literal["ready"]
+    models_loaded: int

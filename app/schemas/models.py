@@ -1,0 +1,127 @@
+"""Models: one per robot or environment, each with its own hyperparameters and state."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import inspect
+import textwrap
+import typing
+from datetime import datetime
+from typing import Any
+
+from pydantic import Field, create_model
+
+from app.schemas.common import ReadSchema, RequestSchema
+from app.schemas.observations import Name
+from core.context.feedback import PAPER_SIGMA
+from core.context.incremental import Hyperparameters as CoreHyperparameters
+
+MAX_CONCEPTS_PER_KIND = 256
+#: Upper bounds on integer settings, so that one request's work stays bounded (far above useful values).
+MAX_INTEGER_SETTING = 10_000
+INTEGER_SETTING_BOUNDS = {"max_contexts": 100, "rejuvenation_tokens": 100_000}
+
+
+def _attribute_docstrings(cls: type) -> dict[str, str]:
+    """The docstring under each field of a dataclass (its source's convention), by field name."""
+    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body  # type: ignore[attr-defined]
+    docs = {}
+    for node, following in zip(body, body[1:], strict=False):
+        if (
+            isinstance(node, ast.AnnAssign)
+            and isinstance(node.target, ast.Name)
+            and isinstance(following, ast.Expr)
+            and isinstance(following.value, ast.Constant)
+            and isinstance(following.value.value, str)
+        ):
+            docs[node.target.id] = " ".join(following.value.value.split())
+    return docs
+
+
+def _hyperparameter_fields(cls: type) -> dict[str, Any]:
+    """Pydantic fields mirroring the core dataclass: same names, types, defaults and docstrings.
+
+    The core's ``__post_init__`` stays the judge of valid values (the service
+    calls it and reports its InvalidInputError with the field); here only the
+    types, finiteness and the work bounds are checked.
+    """
+    types, docs = typing.get_type_hints(cls), _attribute_docstrings(cls)
+    fields: dict[str, Any] = {}
+    for field in dataclasses.fields(cls):
+        constraints: dict[str, Any] = {}
+        if types[field.name] is int:
+            constraints = {"ge": 0, "le": INTEGER_SETTING_BOUNDS.get(field.name, MAX_INTEGER_SETTING)}
+        elif types[field.name] is float:
+            constraints = {"allow_inf_nan": False}
+        fields[field.name] = (types[field.name], Field(field.default, description=docs.get(field.name), **constraints))
+    return fields
+
+
+#: Incremental-LDA's settings, ``core.context.incremental.Hyperparameters`` as a request schema.
+Hyperparameters = create_model(
+    "Hyperparameters",
+    __base__=RequestSchema,
+    __doc__=CoreHyperparameters.__doc__,
+    **_hyperparameter_fields(CoreHyperparameters),
+)
+
+
+class VocabularySchema(RequestSchema):
+    """The concepts of a world (§III): nouns, dichotomic adjective pairs, verbs (= behaviours)."""
+
+    nouns: list[Name] = Field(min_length=1, max_length=MAX_CONCEPTS_PER_KIND)
+    adjective_pairs: list[tuple[Name, Name]] = Field(max_length=MAX_CONCEPTS_PER_KIND)
+    verbs: list[Name] = Field(max_length=MAX_CONCEPTS_PER_KIND)
+
+
+class ModelCreate(RequestSchema):
+    model_config = {
+        "json_schema_extra": {"examples": [{"name": "icub-kitchen", "seed": 7, "hyperparameters": {"alpha": 0.1}}]}
+    }
+
+    name: Name
+    seed: int = Field(0, ge=0, le=2**63 - 1, description="Seed of the model's random generator.")
+    sigma: float = Field(
+        PAPER_SIGMA, ge=0, le=1, description="σ of Eq. 6: weight of the concept web against the context (1 = web only)."
+    )
+    hyperparameters: Hyperparameters = Field(default_factory=Hyperparameters)
+    vocabulary: VocabularySchema | None = Field(None, description="Default: the paper's 29 concepts.")
+
+
+class ModelRead(ReadSchema):
+    model_config = {
+        "json_schema_extra": {
+            "examples": [
+                {
+                    "id": "3f2c0b9e5d7a4e1f8a6b2c4d9e0f1a2b",
+                    "name": "icub-kitchen",
+                    "seed": 7,
+                    "sigma": 0.5,
+                    "hyperparameters": {"alpha": 0.1, "xi": 0.1},
+                    "vocabulary": {"nouns": ["cup"], "adjective_pairs": [["hard", "soft"]], "verbs": ["grasp"]},
+                    "context_count": 3,
+                    "vocabulary_size": 29,
+                    "scene_count": 120,
+                    "training_object_count": 45,
+                    "prototypes_fitted": True,
+                    "concept_web_fitted": True,
+                    "created_at": "2025-01-01T12:00:00Z",
+                }
+            ]
+        }
+    }
+
+    id: str
+    name: str
+    seed: int
+    sigma: float
+    hyperparameters: dict[str, float | int | str]
+    vocabulary: VocabularySchema
+    context_count: int = Field(description="K, the number of contexts discovered so far.")
+    vocabulary_size: int = Field(description="|W|: distinct concepts seen in scenes.")
+    scene_count: int
+    training_object_count: int
+    prototypes_fitted: bool
+    concept_web_fitted: bool
+    created_at: datetime

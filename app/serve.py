@@ -1,0 +1,51 @@
+"""``contextweb serve`` and ``contextweb migrate``: run the service, or only bring its database up to date."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from typing import Any
+
+from app.settings import LOOPBACK_HOSTS, Settings
+from storage.database import create_database_engine
+from storage.migrations import upgrade_to_head
+
+logger = logging.getLogger("contextweb")
+
+
+def add_serve_arguments(serve: argparse.ArgumentParser) -> None:
+    serve.add_argument("--host", help="interface to bind (default CONTEXTWEB_HOST or 127.0.0.1)")
+    serve.add_argument("--port", type=int, help="port to listen on (default CONTEXTWEB_PORT or 8000)")
+    serve.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
+
+
+def run_migrate(_args: argparse.Namespace) -> int:
+    settings = Settings()
+    engine = create_database_engine(settings.resolved_database_url, sqlite_synchronous=settings.sqlite_synchronous)
+    try:
+        upgrade_to_head(engine)
+    finally:
+        engine.dispose()
+    print(f"{engine.url.render_as_string()} is at the latest schema")
+    return 0
+
+
+def run_serve(args: argparse.Namespace) -> int:
+    """Migrate, then serve on uvicorn; without API keys, only on loopback (and say so)."""
+    import uvicorn
+
+    from app.main import create_app
+
+    overrides: dict[str, Any] = {name: value for name in ("host", "port") if (value := getattr(args, name)) is not None}
+    settings = Settings(**overrides)
+    logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s:     %(name)s: %(message)s")
+    host = settings.bind_host()
+    if not settings.auth_enabled:
+        moved = f" (not {settings.host})" if settings.host not in LOOPBACK_HOSTS else ""
+        logger.warning(
+            "no CONTEXTWEB_WRITE_KEY configured: every route is open, so the server binds %s only%s",
+            host,
+            moved,
+        )
+    uvicorn.run(create_app(settings), host=host, port=settings.port, log_level=args.log_level, access_log=False)
+    return 0

@@ -1,0 +1,99 @@
+"""Creating, describing and deleting models."""
+
+from __future__ import annotations
+
+import uuid
+
+from sqlalchemy.orm import Session
+
+from app.errors import InvalidInput
+from app.registry import ModelRegistry, ModelRuntime, jsonable
+from app.schemas.models import ModelCreate, ModelRead, VocabularySchema
+from app.services.perception import Perception
+from app.stream import CLOSE_NORMAL, StreamHub
+from core.context.incremental import Hyperparameters, IncrementalLDA
+from core.errors import InvalidInputError
+from core.vocabulary import Vocabulary, paper_vocabulary
+from storage.repositories import incremental_lda as lda_repository
+from storage.repositories import models as model_repository
+from storage.unit_of_work import after_commit
+
+
+def create_model(session: Session, registry: ModelRegistry, body: ModelCreate) -> ModelRuntime:
+    """A new model with K = 1 and the vocabulary's concepts as its first words; registered on commit."""
+    vocabulary = _vocabulary(body.vocabulary)
+    hyperparameters = body.hyperparameters.model_dump()
+    try:
+        Hyperparameters(**hyperparameters)
+    except InvalidInputError as error:
+        raise InvalidInput(f"hyperparameters.{error.field}", error.problem) from None
+    incremental_lda = IncrementalLDA(vocabulary.concepts, seed=body.seed, **hyperparameters)
+    row = model_repository.add_model(
+        session,
+        model_id=uuid.uuid4().hex,
+        name=body.name,
+        seed=body.seed,
+        sigma=body.sigma,
+        hyperparameters=hyperparameters,
+        vocabulary=vocabulary.to_dict(),
+    )
+    lda_repository.create_state(
+        session,
+        row.id,
+        context_count=incremental_lda.n_contexts,
+        state={"rng_state": jsonable(incremental_lda.to_state().rng_state)},
+        words=[(i, name, vocabulary.kind(name)) for i, name in enumerate(vocabulary.concepts)],
+    )
+    model = ModelRuntime.from_row(
+        row,
+        incremental_lda=incremental_lda,
+        word_kinds=list(vocabulary.kinds),
+        perception=Perception(vocabulary),
+        effects=None,
+        training_object_count=0,
+    )
+    after_commit(session, lambda: registry.add(model))
+    return model
+
+
+def _vocabulary(body: VocabularySchema | None) -> Vocabulary:
+    if body is None:
+        return paper_vocabulary()
+    try:
+        return Vocabulary.from_dict(body.model_dump())
+    except InvalidInputError as error:
+        raise InvalidInput(
+            error.field if error.field.startswith("vocabulary") else f"vocabulary.{error.field}", error.problem
+        ) from None
+
+
+def delete_model(session: Session, registry: ModelRegistry, hub: StreamHub, model: ModelRuntime) -> None:
+    """Delete the model and everything it learned; its dashboards are disconnected on commit."""
+    model_repository.delete_model(session, model.id)
+
+    def forget() -> None:
+        model.deleted = True
+        registry.remove(model.id)
+        hub.close_model(model.id, CLOSE_NORMAL, "model deleted")
+
+    after_commit(session, forget)
+
+
+def model_read(model: ModelRuntime) -> ModelRead:
+    summary = model.summary
+    perception = model.perception
+    return ModelRead(
+        id=model.id,
+        name=model.name,
+        seed=model.seed,
+        sigma=model.sigma,
+        hyperparameters=model.hyperparameters,
+        vocabulary=VocabularySchema.model_validate(model.vocabulary.to_dict()),
+        context_count=summary.context_count,
+        vocabulary_size=summary.vocabulary_size,
+        scene_count=summary.scene_count,
+        training_object_count=model.training_object_count,
+        prototypes_fitted=perception.prototypes is not None,
+        concept_web_fitted=perception.concept_web is not None,
+        created_at=model.created_at,
+    )

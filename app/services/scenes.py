@@ -1,0 +1,201 @@
+"""Scenes: learn one online (Algorithm 2's loop body), or only analyse it; the scene history.
+
+Learning a scene, under the model's lock (app/deps.py):
+
+1. the objects' concept webs (app/services/perception.py) — no database work;
+2. the Idempotency-Key: a key seen with the same body returns the stored answer
+   and changes nothing; with another body it is a 422;
+3. the context fed back into the webs (Eq. 6), against the model as it stood;
+4. Incremental-LDA learns the scene's active concepts (in memory);
+5. everything the update changed is written in this transaction: scene row with
+   its answer, tokens, reassigned tokens, n_kw entries, new words, random state;
+6. after the commit: the summary is published and the stream told.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from datetime import UTC, datetime
+
+import numpy as np
+from sqlalchemy.orm import Session
+
+from app.errors import IdempotencyKeyReused, InvalidInput, SceneNotFound
+from app.registry import ModelRuntime, jsonable
+from app.schemas.common import Page
+from app.schemas.scenes import ObjectAnalysis, SceneCreate, SceneRead, SceneSummary
+from app.schemas.stream import ContextDiscoveredEvent, SceneEvent
+from app.services.perception import ObjectResult, SceneAnalysis, analyse_objects, in_context
+from app.stream import StreamHub
+from core.context.incremental import SceneUpdate
+from storage.repositories import incremental_lda as lda_repository
+from storage.repositories import scenes as scene_repository
+from storage.repositories.incremental_lda import SceneChanges
+from storage.unit_of_work import after_commit
+
+
+def learn_scene(
+    session: Session, model: ModelRuntime, hub: StreamHub, body: SceneCreate, idempotency_key: str | None
+) -> tuple[str, bool]:
+    """Learn ``body`` online; returns the answer (the ``SceneRead`` JSON, stored byte for byte)
+    and whether it is a stored one (idempotent replay)."""
+    analysis = analyse_objects(model.perception, body.objects, model.id)
+    words = _scene_words(analysis)
+    request_hash = hashlib.sha256(body.model_dump_json().encode()).hexdigest()
+    if idempotency_key is not None:
+        stored = scene_repository.find_by_idempotency_key(session, model.id, idempotency_key)
+        if stored is not None:
+            if stored.request_hash != request_hash:
+                raise IdempotencyKeyReused(idempotency_key)
+            return stored.answer, True
+    analysis = in_context(model.perception, model.incremental_lda, analysis, sigma=model.sigma, seed=model.seed)
+    model.changing = True
+    first_token = model.incremental_lda.lda_state.n_tokens
+    update = model.incremental_lda.learn_scene(words)
+    model.word_kinds.extend(_kind(model, body, name) for name in update.vocabulary_additions)
+    answer = _answer(model, update, analysis, created_at=datetime.now(UTC))
+    answer_json = answer.model_dump_json()
+    _save(session, model, update, first_token, answer, answer_json, idempotency_key, request_hash)
+    after_commit(session, lambda: _announce(model, hub, answer))
+    return answer_json, False
+
+
+def infer_scene(model: ModelRuntime, body: SceneCreate) -> SceneRead:
+    """The same analysis as :func:`learn_scene`, changing nothing (fold-in against the current counts)."""
+    analysis = analyse_objects(model.perception, body.objects, model.id)
+    words = _scene_words(analysis)
+    with model.lock:
+        analysis = in_context(model.perception, model.incremental_lda, analysis, sigma=model.sigma, seed=model.seed)
+        posterior = model.incremental_lda.infer_scene(words, seed=model.seed)
+    context_count = int(posterior.shape[0])
+    return SceneRead(
+        model_id=model.id,
+        scene_id=None,
+        learned=False,
+        context_count=context_count,
+        previous_context_count=context_count,
+        context_posterior=posterior.tolist(),
+        map_context=int(np.argmax(posterior)),
+        objects=[_object_analysis(result) for result in analysis.objects],
+    )
+
+
+def get_scene(session: Session, model: ModelRuntime, scene_id: int) -> str:
+    """The ``SceneRead`` JSON the scene was acknowledged with."""
+    row = scene_repository.get_scene(session, model.id, scene_id)
+    if row is None:
+        raise SceneNotFound(model.id, scene_id)
+    return row.answer
+
+
+def scene_history(session: Session, model: ModelRuntime, *, offset: int, limit: int) -> Page[SceneSummary]:
+    rows, total = scene_repository.page_scenes(session, model.id, offset=offset, limit=limit)
+    return Page[SceneSummary](
+        items=[SceneSummary.model_validate(row) for row in rows], total=total, offset=offset, limit=limit
+    )
+
+
+def _scene_words(analysis: SceneAnalysis) -> list[str]:
+    words = analysis.words
+    if not words:
+        raise InvalidInput("objects", "no object of the scene has an active concept: the scene would be empty")
+    return words
+
+
+def _kind(model: ModelRuntime, body: SceneCreate, name: str) -> str | None:
+    """The kind of a new word: the vocabulary's, else the one the scene gave in ``kinds``."""
+    known = model.kind_of(name)
+    if known is not None:
+        return known
+    return next((obj.kinds[name] for obj in body.objects if name in obj.kinds), None)
+
+
+def _object_analysis(result: ObjectResult) -> ObjectAnalysis:
+    return ObjectAnalysis(
+        level=result.level,
+        active_concepts=result.active_concepts,
+        perception=result.perception,
+        web=result.web,
+        in_context=result.in_context,
+    )
+
+
+def _answer(model: ModelRuntime, update: SceneUpdate, analysis: SceneAnalysis, created_at: datetime) -> SceneRead:
+    posterior = update.context_posterior
+    return SceneRead(
+        model_id=model.id,
+        scene_id=update.scene_index,
+        learned=True,
+        context_count=update.contexts_after,
+        previous_context_count=update.contexts_before,
+        context_posterior=posterior.tolist(),
+        map_context=int(np.argmax(posterior)),
+        objects=[_object_analysis(result) for result in analysis.objects],
+        created_at=created_at,
+    )
+
+
+def _save(
+    session: Session,
+    model: ModelRuntime,
+    update: SceneUpdate,
+    first_token: int,
+    answer: SceneRead,
+    answer_json: str,
+    idempotency_key: str | None,
+    request_hash: str,
+) -> None:
+    first_word = len(model.word_kinds) - len(update.vocabulary_additions)
+    lda_repository.save_scene(
+        session,
+        model.id,
+        SceneChanges(
+            scene_id=update.scene_index,
+            first_token=first_token,
+            token_words=update.word_ids.tolist(),
+            token_contexts=update.assignments.tolist(),
+            reassigned=list(zip(update.reassigned_tokens.tolist(), update.reassigned_contexts.tolist(), strict=True)),
+            counts=[tuple(row) for row in update.changed_counts.tolist()],
+            new_words=[
+                (first_word + i, name, model.word_kinds[first_word + i])
+                for i, name in enumerate(update.vocabulary_additions)
+            ],
+            context_count=update.contexts_after,
+            state={"rng_state": jsonable(update.rng_state)},
+        ),
+    )
+    scene_repository.add_scene(
+        session,
+        model.id,
+        update.scene_index,
+        idempotency_key=idempotency_key,
+        request_hash=request_hash,
+        context_count=answer.context_count,
+        map_context=answer.map_context,
+        context_posterior=answer.context_posterior,
+        answer=answer_json,
+        created_at=answer.created_at,
+    )
+
+
+def _announce(model: ModelRuntime, hub: StreamHub, answer: SceneRead) -> None:
+    model.publish_summary()
+    assert answer.scene_id is not None and answer.created_at is not None
+    scene = SceneEvent(
+        model_id=model.id,
+        scene_id=answer.scene_id,
+        context_count=answer.context_count,
+        context_posterior=answer.context_posterior,
+        map_context=answer.map_context,
+        active_concepts=[obj.active_concepts for obj in answer.objects],
+        created_at=answer.created_at,
+    )
+    hub.publish(model.id, scene.model_dump(mode="json"))
+    if answer.context_count > answer.previous_context_count:
+        discovered = ContextDiscoveredEvent(
+            model_id=model.id,
+            scene_id=answer.scene_id,
+            context_count=answer.context_count,
+            previous_context_count=answer.previous_context_count,
+        )
+        hub.publish(model.id, discovered.model_dump(mode="json"))

@@ -1,0 +1,156 @@
+"""Training: store labelled objects, fit prototypes, the concept web and the behaviours' effects.
+
+A fit uses every training object stored for the model (Appendix):
+``fit_prototypes`` learns the 29 prototypes and the perception temperatures,
+``ConceptWeb.fit`` the co-occurrences of each object's noun, adjectives and the
+verbs of its interactions (§III-B), and ``learn_effects`` the planner's
+transition model from the effect vectors (§V-E).
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+
+import numpy as np
+from sqlalchemy.orm import Session
+
+from app.errors import InvalidInput, ModelNotFitted
+from app.registry import ModelRuntime, behaviour_effects, jsonable
+from app.schemas.stream import ModelFittedEvent
+from app.schemas.training import (
+    FitCreate,
+    FitRead,
+    PrototypeRead,
+    PrototypeTableRead,
+    TrainingBatchCreate,
+    TrainingBatchRead,
+    TrainingObjectCreate,
+)
+from app.services.perception import Perception, check_behaviours, feature_vectors, raw_feature_vectors
+from app.stream import StreamHub
+from core.concept_web import ConceptWeb
+from core.errors import InvalidInputError
+from core.features.layout import EFFECT_SIZE
+from core.prototypes.prototypes import RELEVANCE_SYMBOLS, fit_prototypes, format_prototype_table
+from core.vocabulary import Vocabulary
+from storage.repositories import models as model_repository
+from storage.unit_of_work import after_commit
+
+
+def add_training_objects(session: Session, model: ModelRuntime, body: TrainingBatchCreate) -> TrainingBatchRead:
+    rows = [_training_row(model.vocabulary, obj, f"objects[{i}]") for i, obj in enumerate(body.objects)]
+    model_repository.add_training_objects(session, model.id, rows)
+    total = model.training_object_count + len(rows)
+
+    def count() -> None:
+        model.training_object_count = total
+
+    after_commit(session, count)
+    return TrainingBatchRead(added=len(rows), training_object_count=total)
+
+
+def _training_row(vocabulary: Vocabulary, obj: TrainingObjectCreate, field: str) -> dict[str, object]:
+    if obj.noun not in vocabulary.nouns:
+        raise InvalidInput(
+            f"{field}.noun", f"{obj.noun!r} is not a noun of the model; nouns are {list(vocabulary.nouns)}"
+        )
+    _check_adjectives(vocabulary, obj.adjectives, f"{field}.adjectives")
+    if obj.features is not None:
+        check_behaviours(vocabulary, obj.features.effects, f"{field}.features")
+        entity, effects = feature_vectors(obj.features)
+    else:
+        assert obj.raw is not None
+        check_behaviours(vocabulary, [i.behaviour for i in obj.raw.interactions], f"{field}.raw")
+        entity, effects = raw_feature_vectors(obj.raw, f"{field}.raw")
+    for behaviour, verb in obj.verbs.items():
+        if behaviour not in effects:
+            raise InvalidInput(f"{field}.verbs.{behaviour}", f"the object has no interaction {behaviour!r} to label")
+        if verb not in vocabulary.verbs:
+            raise InvalidInput(f"{field}.verbs.{behaviour}", f"{verb!r} is not a verb of the model")
+    return {
+        "noun": obj.noun,
+        "adjectives": list(obj.adjectives),
+        "entity": entity.tolist(),
+        "effects": {behaviour: vector.tolist() for behaviour, vector in effects.items()},
+        "verbs": {behaviour: obj.verbs.get(behaviour, behaviour) for behaviour in effects},
+    }
+
+
+def _check_adjectives(vocabulary: Vocabulary, adjectives: list[str], field: str) -> None:
+    """Exactly one adjective of every dichotomic pair, as the Appendix labels its objects."""
+    for adjective in adjectives:
+        if adjective not in vocabulary.adjectives:
+            raise InvalidInput(field, f"{adjective!r} is not an adjective of the model")
+    for first, second in vocabulary.adjective_pairs:
+        given = [a for a in adjectives if a in (first, second)]
+        if len(given) != 1:
+            raise InvalidInput(field, f"needs exactly one of {first!r} / {second!r}, got {given}")
+
+
+def fit(session: Session, model: ModelRuntime, hub: StreamHub, body: FitCreate) -> FitRead:
+    """Fit the model's perception from all its training objects; it replaces the old one on commit."""
+    objects = model_repository.list_training_objects(session, model.id)
+    if not objects:
+        raise ModelNotFitted(model.id, "training objects")
+    vocabulary = model.vocabulary
+    effect_rows = [
+        (vector, behaviour, obj.verbs[behaviour]) for obj in objects for behaviour, vector in obj.effects.items()
+    ]
+    try:
+        prototypes = fit_prototypes(
+            vocabulary,
+            np.array([obj.entity for obj in objects], dtype=np.float64),
+            [[obj.noun, *obj.adjectives] for obj in objects],
+            np.array([vector for vector, _, _ in effect_rows], dtype=np.float64).reshape(-1, EFFECT_SIZE),
+            [verb for _, _, verb in effect_rows],
+            method=body.method,
+            seed=model.seed if body.seed is None else body.seed,
+        )
+        concept_web = ConceptWeb.fit(
+            vocabulary, [[obj.noun, *obj.adjectives, *dict.fromkeys(obj.verbs.values())] for obj in objects]
+        )
+    except InvalidInputError as error:
+        raise InvalidInput(f"training.{error.field}", error.problem) from None
+    effects = behaviour_effects(
+        [vector for vector, _, _ in effect_rows], [behaviour for _, behaviour, _ in effect_rows]
+    )
+    model_repository.save_fit(
+        session,
+        model.id,
+        prototypes=jsonable(prototypes.to_state()),
+        concept_web=jsonable(concept_web.to_state()),
+        fitted_at=datetime.now(UTC),
+    )
+
+    def install() -> None:
+        model.perception = Perception(vocabulary, prototypes, concept_web)
+        model.effects = effects
+        event = ModelFittedEvent(model_id=model.id, training_object_count=len(objects))
+        hub.publish(model.id, event.model_dump(mode="json"))
+
+    after_commit(session, install)
+    return FitRead(
+        model_id=model.id,
+        method=prototypes.method,
+        training_object_count=len(objects),
+        concept_web_edges=len(concept_web.edges),
+        behaviours=[] if effects is None else list(effects.behaviours),
+    )
+
+
+def prototype_table(model: ModelRuntime) -> PrototypeTableRead:
+    prototypes = model.perception.prototypes
+    if prototypes is None:
+        raise ModelNotFitted(model.id, "prototypes")
+    vocabulary = model.vocabulary
+    symbols = np.array(RELEVANCE_SYMBOLS)
+    rows = list(zip(prototypes.entity_concepts, prototypes.entity_relevance, strict=True))
+    rows += list(zip(vocabulary.verbs, prototypes.verb_relevance, strict=True))
+    return PrototypeTableRead(
+        method=prototypes.method,
+        concepts=[
+            PrototypeRead(name=name, kind=vocabulary.kind(name), relevance="".join(symbols[codes]))
+            for name, codes in rows
+        ],
+        table=format_prototype_table(prototypes),
+    )

@@ -1,0 +1,25 @@
+"""The long-lived objects of one running app, created by the lifespan (app/main.py)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from sqlalchemy import Engine
+from sqlalchemy.orm import Session, sessionmaker
+
+from app.registry import ModelRegistry
+from app.settings import Settings
+from app.stream import StreamHub
+
+
+@dataclass(eq=False)
+class AppState:
+    """Engine, session makers, in-memory models and the websocket hub of one app."""
+
+    settings: Settings
+    engine: Engine
+    read_sessions: sessionmaker[Session]
+    write_sessions: sessionmaker[Session]
+    registry: ModelRegistry
+    hub: StreamHub
+    models_loaded: bool = field(default=False)

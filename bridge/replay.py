@@ -1,0 +1,260 @@
+"""Post interactions recorded on disk, as scenes or training objects (``contextweb bridge replay``).
+
+One object is one folder (docs/bridge.md has the full layout)::
+
+    cup_03/
+        object.json            optional labels {"noun": "cup", "adjectives": [...]} (needed for training)
+        look.ply               first snapshot: PLY or PCD, metres, table frame
+        grasp/                 one folder per behaviour applied
+            before.pcd
+            after.pcd
+            finger.csv         optional: columns haptic, proprioceptive (or finger.npy, shape (n, 2))
+        shake/
+            before.ply
+            after.ply
+            audio.wav          optional: any sample rate, mixed down to mono
+
+A scene is a folder of object folders (or one object folder alone). Files are
+read with maintained readers: ``plyfile`` for PLY, ``pypcd4`` for PCD (ASCII,
+binary and binary_compressed), ``soundfile`` for WAV, ``numpy`` for CSV/NPY;
+each becomes a validated :mod:`core.payloads` object, so a bad file fails with
+an error naming the file and the problem before anything is sent.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import soundfile
+from plyfile import PlyData, PlyElement, PlyParseError
+from pypcd4 import PointCloud as PcdCloud
+
+from bridge.client import Client, QueuedScene
+from bridge.models import SceneObject, TrainingObject
+from bridge.simulate import DEFAULT_MAX_POINTS, add_service_arguments, raw_object
+from core.errors import InvalidInputError
+from core.payloads import Audio, FingerSeries, Interaction, ObjectRecording, PointCloud
+
+CLOUD_SUFFIXES = (".ply", ".pcd")
+LABELS_FILE = "object.json"
+
+
+@dataclass(frozen=True)
+class RecordedObject:
+    """One object folder read back: its recording and, when present, its labels."""
+
+    path: Path
+    recording: ObjectRecording
+    noun: str | None = None
+    adjectives: tuple[str, ...] = ()
+
+
+def read_point_cloud(path: Path, scale: float = 1.0) -> PointCloud:
+    """x, y, z of a PLY (``vertex`` element) or PCD file, times ``scale`` (0.001 for millimetres)."""
+    suffix = path.suffix.lower()
+    if suffix not in CLOUD_SUFFIXES:
+        raise InvalidInputError(str(path), f"is not a point cloud file ({', '.join(CLOUD_SUFFIXES)})")
+    try:
+        if suffix == ".ply":
+            vertex = PlyData.read(str(path))["vertex"]
+            points = np.column_stack([np.asarray(vertex[axis], dtype=np.float64) for axis in ("x", "y", "z")])
+        else:
+            points = PcdCloud.from_path(path).numpy(("x", "y", "z")).astype(np.float64)
+    except (KeyError, ValueError, OSError, PlyParseError) as error:
+        raise InvalidInputError(str(path), f"cannot be read as a point cloud: {error}") from None
+    points = points[np.all(np.isfinite(points), axis=1)] * scale  # PCD marks missing depth with NaN
+    return PointCloud(points)
+
+
+def read_audio(path: Path) -> Audio:
+    """A WAV (or any libsndfile format) as mono float PCM in [-1, 1]."""
+    try:
+        samples, sample_rate = soundfile.read(str(path), dtype="float32", always_2d=True)
+    except (RuntimeError, soundfile.LibsndfileError) as error:
+        raise InvalidInputError(str(path), f"cannot be read as audio: {error}") from None
+    return Audio(samples.mean(axis=1), sample_rate)
+
+
+def read_finger(path: Path) -> FingerSeries:
+    """Haptic and proprioceptive series: a CSV with those two named columns, or an (n, 2) NPY."""
+    if path.suffix.lower() == ".npy":
+        table = np.load(path, allow_pickle=False)
+        if table.ndim != 2 or table.shape[1] != 2:
+            raise InvalidInputError(str(path), f"must be an (n, 2) array of haptic, proprioceptive; got {table.shape}")
+        return FingerSeries(table[:, 0], table[:, 1])
+    table = np.genfromtxt(path, delimiter=",", names=True, dtype=np.float64)
+    names = table.dtype.names or ()
+    if not {"haptic", "proprioceptive"} <= set(names):
+        raise InvalidInputError(str(path), f"needs the columns haptic and proprioceptive, has {list(names)}")
+    return FingerSeries(np.atleast_1d(table["haptic"]), np.atleast_1d(table["proprioceptive"]))
+
+
+def read_object(folder: Path, scale: float = 1.0) -> RecordedObject:
+    """An object folder (layout in the module docstring) as a recording with its labels."""
+    interactions = []
+    for behaviour in sorted(child for child in folder.iterdir() if child.is_dir()):
+        audio = _first(behaviour, ("audio.wav", "audio.flac"))
+        finger = _first(behaviour, ("finger.csv", "finger.npy"))
+        interactions.append(
+            Interaction(
+                behaviour=behaviour.name,
+                before=read_point_cloud(_cloud(behaviour, "before"), scale),
+                after=read_point_cloud(_cloud(behaviour, "after"), scale),
+                audio=None if audio is None else read_audio(audio),
+                finger=None if finger is None else read_finger(finger),
+            )
+        )
+    recording = ObjectRecording(look=read_point_cloud(_cloud(folder, "look"), scale), interactions=tuple(interactions))
+    labels_path = folder / LABELS_FILE
+    if not labels_path.exists():
+        return RecordedObject(folder, recording)
+    labels = json.loads(labels_path.read_text(encoding="utf-8"))
+    return RecordedObject(folder, recording, labels.get("noun"), tuple(labels.get("adjectives", ())))
+
+
+def read_scene(folder: Path, scale: float = 1.0) -> list[RecordedObject]:
+    """A scene folder (its subfolders are objects) or a single object folder."""
+    if _has_cloud(folder, "look"):
+        return [read_object(folder, scale)]
+    objects = [read_object(child, scale) for child in sorted(folder.iterdir()) if child.is_dir()]
+    if not objects:
+        raise InvalidInputError(str(folder), "holds neither a look.ply/look.pcd nor object folders")
+    return objects
+
+
+def write_object(
+    folder: Path,
+    recording: ObjectRecording,
+    *,
+    noun: str | None = None,
+    adjectives: Sequence[str] = (),
+    cloud_format: str = "ply",
+    finger_format: str = "csv",
+) -> Path:
+    """Write a recording in the replay layout (the inverse of :func:`read_object`)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    _write_cloud(folder / f"look.{cloud_format}", recording.look.points)
+    for interaction in recording.interactions:
+        behaviour = folder / interaction.behaviour
+        behaviour.mkdir(exist_ok=True)
+        _write_cloud(behaviour / f"before.{cloud_format}", interaction.before.points)
+        _write_cloud(behaviour / f"after.{cloud_format}", interaction.after.points)
+        if interaction.audio is not None:
+            soundfile.write(
+                str(behaviour / "audio.wav"), interaction.audio.samples, interaction.audio.sample_rate, subtype="FLOAT"
+            )
+        if interaction.finger is not None:
+            table = np.column_stack([interaction.finger.haptic, interaction.finger.proprioceptive])
+            if finger_format == "npy":
+                np.save(behaviour / "finger.npy", table)
+            else:
+                np.savetxt(behaviour / "finger.csv", table, delimiter=",", header="haptic,proprioceptive", comments="")
+    if noun is not None:
+        labels = {"noun": noun, "adjectives": list(adjectives)}
+        (folder / LABELS_FILE).write_text(json.dumps(labels, indent=2) + "\n", encoding="utf-8")
+    return folder
+
+
+def _write_cloud(path: Path, points: np.ndarray) -> None:
+    if path.suffix == ".pcd":
+        PcdCloud.from_xyz_points(points.astype(np.float32)).save(path)
+        return
+    vertex = np.empty(len(points), dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
+    vertex["x"], vertex["y"], vertex["z"] = points.T
+    PlyData([PlyElement.describe(vertex, "vertex")], byte_order="<").write(str(path))
+
+
+def _has_cloud(folder: Path, stem: str) -> bool:
+    return any((folder / f"{stem}{suffix}").exists() for suffix in CLOUD_SUFFIXES)
+
+
+def _cloud(folder: Path, stem: str) -> Path:
+    found = _first(folder, tuple(f"{stem}{suffix}" for suffix in CLOUD_SUFFIXES))
+    if found is None:
+        raise InvalidInputError(str(folder), f"has no {stem}.ply or {stem}.pcd")
+    return found
+
+
+def _first(folder: Path, names: Sequence[str]) -> Path | None:
+    return next((folder / name for name in names if (folder / name).exists()), None)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "paths", nargs="+", type=Path, help="scene folders (or object folders; labelled ones with --training)"
+    )
+    add_service_arguments(parser)
+    parser.add_argument("--model-id", required=True, help="the model to post to")
+    parser.add_argument("--training", action="store_true", help="post labelled objects as training objects, then fit")
+    parser.add_argument(
+        "--scale", type=float, default=1.0, help="multiply point coordinates (0.001: files in millimetres)"
+    )
+    parser.add_argument("--max-points", type=int, default=DEFAULT_MAX_POINTS, help="points kept per cloud")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the cloud subsampling")
+
+
+def run(args: argparse.Namespace) -> int:
+    rng = np.random.default_rng(args.seed)
+    with Client(args.url, args.api_key, offline_queue=args.queue) as client:
+        if args.training:
+            fit = replay_training(
+                client, args.model_id, args.paths, rng=rng, scale=args.scale, max_points=args.max_points
+            )
+            print(
+                f"model {args.model_id}: {fit.training_object_count} training objects, {fit.concept_web_edges} web edges"
+            )
+            return 0
+        for path in args.paths:
+            answer = replay_scene(client, args.model_id, path, rng=rng, scale=args.scale, max_points=args.max_points)
+            print(f"{path}: {_describe(answer)}")
+    return 0
+
+
+def replay_scene(
+    client: Client,
+    model_id: str,
+    folder: Path,
+    *,
+    rng: np.random.Generator,
+    scale: float = 1.0,
+    max_points: int = DEFAULT_MAX_POINTS,
+) -> Any:
+    """Post one recorded scene at the raw level; the service's analysis (or a QueuedScene)."""
+    objects = [SceneObject(raw=raw_object(obj.recording, rng, max_points)) for obj in read_scene(folder, scale)]
+    return client.scenes.create(model_id, objects)
+
+
+def replay_training(
+    client: Client,
+    model_id: str,
+    folders: Sequence[Path],
+    *,
+    rng: np.random.Generator,
+    scale: float = 1.0,
+    max_points: int = DEFAULT_MAX_POINTS,
+) -> Any:
+    """Post labelled object folders as training objects (one request each: raw objects are large), then fit."""
+    for folder in folders:
+        obj = read_object(folder, scale)
+        if obj.noun is None:
+            raise InvalidInputError(
+                str(folder / LABELS_FILE), "is missing: a training object needs its noun and adjectives"
+            )
+        labelled = TrainingObject(
+            noun=obj.noun, adjectives=list(obj.adjectives), raw=raw_object(obj.recording, rng, max_points)
+        )
+        client.training.add_objects(model_id, [labelled])
+    return client.training.fit(model_id)
+
+
+def _describe(answer: Any) -> str:
+    if isinstance(answer, QueuedScene):
+        return f"queued offline ({answer.queued} waiting)"
+    posterior = " ".join(f"{p:.2f}" for p in answer.context_posterior)
+    return f"scene {answer.scene_id}, K = {answer.context_count}, posterior [{posterior}]"

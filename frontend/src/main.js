@@ -1,0 +1,302 @@
+// The read-only dashboard: models; for one model its contexts, the posterior of recent scenes, K over
+// time, the latest object's concept web and a plan. Live over the websocket; polling when it is down.
+import "uplot/dist/uPlot.min.css";
+import "./style.css";
+import { ApiError, api, saveKey, streamUrl } from "./api.js";
+import { ContextCountChart, PosteriorChart } from "./charts.js";
+import { CooccurrenceCounter, renderConceptWeb } from "./conceptWeb.js";
+import { renderContexts } from "./contexts.js";
+import { renderPlan } from "./planning.js";
+
+const RECENT_SCENES = 200;
+const SCENES_FOR_EDGES = 10;
+const POLL_MS = 3000;
+const RECONNECT_MS = 10000;
+const REFRESH_DEBOUNCE_MS = 800;
+// ?transport=polling: for networks whose proxies drop websockets.
+const POLLING_ONLY = new URLSearchParams(location.search).get("transport") === "polling";
+
+const $ = (id) => document.getElementById(id);
+const charts = {
+  posterior: new PosteriorChart($("posterior-chart"), document.createElement("div")),
+  contextCount: new ContextCountChart($("k-chart")),
+};
+$("posterior-chart").before(charts.posterior.legend);
+charts.posterior.legend.className = "legend";
+
+let session = null; // everything about the selected model; replaced when another model is chosen
+
+function setConnection(mode) {
+  const badge = $("connection");
+  badge.dataset.mode = mode;
+  badge.textContent = { live: "live (websocket)", polling: "polling", offline: "offline" }[mode];
+}
+
+function showMessage(text) {
+  $("message").textContent = text;
+}
+
+function handleError(error) {
+  if (error instanceof ApiError && (error.status === 401 || error.status === 403)) {
+    $("key-form").hidden = false;
+    showMessage("This service needs its read key: enter it above (or open /?key=…).");
+  } else {
+    showMessage(`Could not reach the service: ${error.message}`);
+  }
+  setConnection("offline");
+}
+
+async function loadModels() {
+  const models = await api.models();
+  const list = $("model-list");
+  list.replaceChildren(
+    ...models.map((model) => {
+      const item = document.createElement("li");
+      const link = document.createElement("a");
+      link.href = `?model=${model.id}`;
+      link.textContent = model.name;
+      link.addEventListener("click", (event) => {
+        event.preventDefault();
+        history.replaceState(null, "", `?model=${model.id}`);
+        select(model.id);
+      });
+      const facts = document.createElement("small");
+      facts.className = "muted";
+      facts.textContent = ` K=${model.context_count}, ${model.scene_count} scenes`;
+      item.dataset.modelId = model.id;
+      item.append(link, facts);
+      return item;
+    }),
+  );
+  return models;
+}
+
+function markSelected(modelId) {
+  for (const item of $("model-list").children) item.classList.toggle("selected", item.dataset.modelId === modelId);
+}
+
+async function select(modelId) {
+  session?.close();
+  session = new ModelSession(modelId);
+  markSelected(modelId);
+  await session.start();
+}
+
+class ModelSession {
+  constructor(modelId) {
+    this.modelId = modelId;
+    this.model = null;
+    this.scenes = [];
+    this.counter = new CooccurrenceCounter();
+    this.fittedEdges = null;
+    this.latest = null;
+    this.plannedContext = undefined;
+    this.socket = null;
+    this.timers = new Set();
+    this.refreshTimer = null;
+    this.closed = false;
+  }
+
+  close() {
+    this.closed = true;
+    this.socket?.close();
+    for (const timer of this.timers) clearTimeout(timer);
+  }
+
+  later(callback, ms) {
+    const timer = setTimeout(() => {
+      this.timers.delete(timer);
+      if (!this.closed) callback();
+    }, ms);
+    this.timers.add(timer);
+  }
+
+  async start() {
+    try {
+      this.model = await api.model(this.modelId);
+      $("model-title").textContent = `${this.model.name} (${this.model.id})`;
+      await this.fetchFittedEdges();
+      const offset = Math.max(0, this.model.scene_count - RECENT_SCENES);
+      await this.fetchScenes(offset);
+      await this.seedCooccurrence();
+      await this.refresh();
+      showMessage(this.scenes.length ? "" : "No scene learned yet: post scenes (e.g. `contextweb bridge simulate`).");
+    } catch (error) {
+      handleError(error);
+      return;
+    }
+    this.connect();
+  }
+
+  async fetchFittedEdges() {
+    try {
+      this.fittedEdges = (await api.conceptWeb(this.modelId)).edges;
+    } catch (error) {
+      if (!(error instanceof ApiError) || error.status >= 500 || error.status === 401) throw error;
+      this.fittedEdges = null; // not fitted, or a service without the route: count co-occurrences here
+    }
+  }
+
+  async fetchScenes(offset) {
+    for (;;) {
+      const page = await api.scenes(this.modelId, offset, 500);
+      const known = new Set(this.scenes.map((s) => s.scene_id));
+      this.scenes.push(...page.items.filter((s) => !known.has(s.scene_id)));
+      offset += page.items.length;
+      if (!page.items.length || offset >= page.total) break;
+    }
+    this.scenes = this.scenes.slice(-RECENT_SCENES);
+    this.drawCharts();
+  }
+
+  async seedCooccurrence() {
+    const recent = this.scenes.slice(-SCENES_FOR_EDGES);
+    const answers = await Promise.all(recent.map((s) => api.scene(this.modelId, s.scene_id)));
+    for (const answer of answers) for (const object of answer.objects) this.counter.add(object.active_concepts);
+  }
+
+  drawCharts() {
+    charts.posterior.render(this.scenes);
+    charts.contextCount.render(this.scenes);
+  }
+
+  // Contexts, the latest object's web and the plan: re-read after scenes arrive (debounced).
+  scheduleRefresh() {
+    if (this.refreshTimer) return;
+    this.refreshTimer = true;
+    this.later(async () => {
+      this.refreshTimer = null;
+      try {
+        await this.refresh();
+      } catch (error) {
+        handleError(error);
+      }
+    }, REFRESH_DEBOUNCE_MS);
+  }
+
+  async refresh() {
+    const [listing] = await Promise.all([api.contexts(this.modelId), loadModels()]);
+    renderContexts($("contexts"), listing);
+    markSelected(this.modelId);
+    const last = this.scenes[this.scenes.length - 1];
+    if (!last) return;
+    this.latest = await api.scene(this.modelId, last.scene_id);
+    const object = this.latest.objects[this.latest.objects.length - 1];
+    renderConceptWeb($("concept-web"), {
+      vocabulary: this.model.vocabulary,
+      object,
+      edges: this.fittedEdges ?? this.counter.edges(),
+    });
+    $("web-caption").textContent =
+      `Scene ${last.scene_id}, object ${this.latest.objects.length} of ${this.latest.objects.length} (${object.level} level); ` +
+      `edges: ${this.fittedEdges ? "co-occurrence in training" : "co-occurrence in the scenes seen here"}.`;
+    if (this.plannedContext !== last.map_context) await this.plan();
+  }
+
+  async plan() {
+    const form = new FormData($("plan-form"));
+    const last = this.scenes[this.scenes.length - 1];
+    const request = { object: form.get("object"), start: Number(form.get("start")), goal: Number(form.get("goal")), mode: "paper" };
+    if (last) request.scene_id = last.scene_id;
+    try {
+      const plan = await api.plan(this.modelId, request);
+      this.plannedContext = last?.map_context;
+      renderPlan($("plan"), plan);
+    } catch (error) {
+      if (!(error instanceof ApiError) || error.status === 401) throw error;
+      this.plannedContext = last?.map_context;
+      $("plan").textContent = `No plan: ${error.message}`;
+    }
+  }
+
+  onEvent(event) {
+    if (event.type === "hello") {
+      const last = this.scenes[this.scenes.length - 1];
+      if (event.scene_count > (last ? last.scene_id + 1 : 0)) this.catchUp();
+    } else if (event.type === "scene") {
+      if (this.scenes.some((s) => s.scene_id === event.scene_id)) return;
+      this.scenes.push(event);
+      this.scenes = this.scenes.slice(-RECENT_SCENES);
+      for (const concepts of event.active_concepts) this.counter.add(concepts);
+      this.drawCharts();
+      this.scheduleRefresh();
+    } else if (event.type === "context_discovered") {
+      showMessage(`A new context was discovered at scene ${event.scene_id}: K = ${event.context_count}.`);
+    } else if (event.type === "model_fitted") {
+      this.fetchFittedEdges().then(() => this.scheduleRefresh(), handleError);
+    }
+  }
+
+  async catchUp() {
+    const last = this.scenes[this.scenes.length - 1];
+    try {
+      await this.fetchScenes(last ? last.scene_id + 1 : 0);
+      this.scheduleRefresh();
+    } catch (error) {
+      handleError(error);
+    }
+  }
+
+  connect() {
+    if (this.closed) return;
+    if (POLLING_ONLY) {
+      setConnection("polling");
+      this.later(() => this.poll(), POLL_MS);
+      return;
+    }
+    const socket = new WebSocket(streamUrl(this.modelId));
+    this.socket = socket;
+    socket.addEventListener("open", () => setConnection("live"));
+    socket.addEventListener("message", (message) => this.onEvent(JSON.parse(message.data)));
+    socket.addEventListener("close", () => {
+      if (this.closed || this.socket !== socket) return;
+      this.socket = null;
+      setConnection("polling");
+      this.poll();
+      this.later(() => this.connect(), RECONNECT_MS);
+    });
+  }
+
+  // The fallback while the websocket is down: read the model's scene count and fetch what is new.
+  async poll() {
+    if (this.closed || this.socket?.readyState === WebSocket.OPEN) return;
+    try {
+      await this.catchUp();
+      setConnection(this.socket?.readyState === WebSocket.OPEN ? "live" : "polling");
+    } catch (error) {
+      handleError(error);
+    }
+    this.later(() => this.poll(), POLL_MS);
+  }
+}
+
+$("key-form").addEventListener("submit", (event) => {
+  event.preventDefault();
+  saveKey($("key-input").value);
+  $("key-form").hidden = true;
+  main();
+});
+
+$("plan-form").addEventListener("submit", (event) => {
+  event.preventDefault();
+  session?.plan().catch(handleError);
+});
+
+async function main() {
+  try {
+    const models = await loadModels();
+    if (!models.length) {
+      showMessage("No model yet: create one with the bridge client or `contextweb bridge simulate`.");
+      setConnection("polling");
+      setTimeout(main, POLL_MS);
+      return;
+    }
+    const wanted = new URLSearchParams(location.search).get("model");
+    const chosen = models.find((m) => m.id === wanted) ?? models.reduce((a, b) => (b.scene_count > a.scene_count ? b : a));
+    await select(chosen.id);
+  } catch (error) {
+    handleError(error);
+  }
+}
+
+main();

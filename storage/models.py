@@ -1,0 +1,164 @@
+"""The tables, SQLAlchemy 2 style: one row per model, word, scene, token and n_kw count.
+
+A model's Incremental-LDA state is stored incrementally: every learned scene
+adds its ``scene`` row and its ``token`` rows (word id and context assignment),
+rewrites the ``context_word_count`` entries (n_kw of Eq. 5) and the tokens whose
+assignment the scene's sweeps changed, and replaces the small
+``incremental_lda_state`` row (K, scene count, random state) — all in the
+scene's transaction. The invariant: for every model, ``context_word_count``
+equals the counts of ``token`` rows grouped by (context, word).
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import JSON, BigInteger, DateTime, Float, ForeignKey, Integer, MetaData, String, Text, UniqueConstraint
+from sqlalchemy.dialects.postgresql import JSONB
+from sqlalchemy.engine import Dialect
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+from sqlalchemy.types import TypeDecorator
+
+NAMING_CONVENTION = {
+    "ix": "ix_%(column_0_label)s",
+    "uq": "uq_%(table_name)s_%(column_0_N_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_N_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+#: JSON everywhere, stored as JSONB on PostgreSQL.
+JSONType = JSON().with_variant(JSONB(), "postgresql")
+
+
+def utc_now() -> datetime:
+    return datetime.now(UTC)
+
+
+class UtcDateTime(TypeDecorator[datetime]):
+    """A timezone-aware UTC timestamp on every backend (SQLite stores no zone; it is UTC here)."""
+
+    impl = DateTime(timezone=True)
+    cache_ok = True
+
+    def process_bind_param(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        return None if value is None else value.astimezone(UTC)
+
+    def process_result_value(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        if value is None or value.tzinfo is not None:
+            return value
+        return value.replace(tzinfo=UTC)
+
+
+class Base(DeclarativeBase):
+    metadata = MetaData(naming_convention=NAMING_CONVENTION)
+    type_annotation_map = {dict[str, Any]: JSONType, list[Any]: JSONType, datetime: UtcDateTime}
+
+
+def _model_fk() -> Any:
+    return ForeignKey("model.id", ondelete="CASCADE")
+
+
+class Model(Base):
+    """One independent context model (one robot or environment) and its fitted perception."""
+
+    __tablename__ = "model"
+
+    id: Mapped[str] = mapped_column(String(32), primary_key=True)
+    name: Mapped[str] = mapped_column(String(200))
+    seed: Mapped[int] = mapped_column(BigInteger)
+    sigma: Mapped[float] = mapped_column(Float)
+    hyperparameters: Mapped[dict[str, Any]]
+    vocabulary: Mapped[dict[str, Any]]
+    prototypes: Mapped[dict[str, Any] | None]
+    concept_web: Mapped[dict[str, Any] | None]
+    fitted_at: Mapped[datetime | None] = mapped_column()
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    updated_at: Mapped[datetime] = mapped_column(default=utc_now, onupdate=utc_now)
+
+
+class IncrementalLdaState(Base):
+    """The scalar part of a model's Incremental-LDA state (K, scene count, random state)."""
+
+    __tablename__ = "incremental_lda_state"
+
+    model_id: Mapped[str] = mapped_column(_model_fk(), primary_key=True)
+    scene_count: Mapped[int] = mapped_column(Integer, default=0)
+    context_count: Mapped[int] = mapped_column(Integer)
+    state: Mapped[dict[str, Any]]
+    updated_at: Mapped[datetime] = mapped_column(default=utc_now, onupdate=utc_now)
+
+
+class Word(Base):
+    """A word of the LDA vocabulary (an active concept name); ``id`` is its column in n_kw."""
+
+    __tablename__ = "word"
+    __table_args__ = (UniqueConstraint("model_id", "name"),)
+
+    model_id: Mapped[str] = mapped_column(_model_fk(), primary_key=True)
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    name: Mapped[str] = mapped_column(String(200))
+    kind: Mapped[str | None] = mapped_column(String(20))
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+
+class Scene(Base):
+    """One learned scene (an LDA document) and the answer it was acknowledged with."""
+
+    __tablename__ = "scene"
+    __table_args__ = (UniqueConstraint("model_id", "idempotency_key"),)
+
+    model_id: Mapped[str] = mapped_column(_model_fk(), primary_key=True)
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    idempotency_key: Mapped[str | None] = mapped_column(String(200))
+    request_hash: Mapped[str] = mapped_column(String(64))
+    context_count: Mapped[int] = mapped_column(Integer)
+    map_context: Mapped[int] = mapped_column(Integer)
+    context_posterior: Mapped[list[Any]]
+    answer: Mapped[str] = mapped_column(Text)
+    """The JSON body the scene was acknowledged with, byte for byte (replayed as is)."""
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+
+class Token(Base):
+    """One word occurrence and its current context assignment z.
+
+    ``id`` is the token's index in the model's corpus (scenes in order, words in
+    scene order): the index Incremental-LDA uses, so a resampled token is
+    updated by primary key.
+    """
+
+    __tablename__ = "token"
+
+    model_id: Mapped[str] = mapped_column(_model_fk(), primary_key=True)
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    scene_id: Mapped[int] = mapped_column(Integer)
+    word_id: Mapped[int] = mapped_column(Integer)
+    context: Mapped[int] = mapped_column(Integer)
+
+
+class ContextWordCount(Base):
+    """n_kw of Eq. 5: how many tokens of word w are assigned to context k."""
+
+    __tablename__ = "context_word_count"
+
+    model_id: Mapped[str] = mapped_column(_model_fk(), primary_key=True)
+    context: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    word_id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    count: Mapped[int] = mapped_column(Integer)
+
+
+class TrainingObject(Base):
+    """A labelled training object (Appendix): its features and noun/adjective/verb labels."""
+
+    __tablename__ = "training_object"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    model_id: Mapped[str] = mapped_column(_model_fk(), index=True)
+    noun: Mapped[str] = mapped_column(String(200))
+    adjectives: Mapped[list[Any]]
+    entity: Mapped[list[Any]]
+    effects: Mapped[dict[str, Any]]
+    verbs: Mapped[dict[str, Any]]
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)

@@ -1,0 +1,70 @@
+"""Queries on the ``model`` table and the training objects of a model."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from datetime import datetime
+from typing import Any
+
+from sqlalchemy import delete, func, select, update
+from sqlalchemy.orm import Session
+
+from storage.models import Model, TrainingObject
+
+
+def add_model(
+    session: Session,
+    *,
+    model_id: str,
+    name: str,
+    seed: int,
+    sigma: float,
+    hyperparameters: dict[str, Any],
+    vocabulary: dict[str, Any],
+) -> Model:
+    model = Model(
+        id=model_id, name=name, seed=seed, sigma=sigma, hyperparameters=hyperparameters, vocabulary=vocabulary
+    )
+    session.add(model)
+    session.flush()
+    return model
+
+
+def get_model(session: Session, model_id: str) -> Model | None:
+    return session.get(Model, model_id)
+
+
+def list_models(session: Session) -> Sequence[Model]:
+    return session.scalars(select(Model).order_by(Model.created_at, Model.id)).all()
+
+
+def delete_model(session: Session, model_id: str) -> None:
+    """Delete a model; its scenes, tokens, counts and training objects go by ON DELETE CASCADE."""
+    session.execute(delete(Model).where(Model.id == model_id))
+
+
+def save_fit(
+    session: Session, model_id: str, *, prototypes: dict[str, Any], concept_web: dict[str, Any], fitted_at: datetime
+) -> None:
+    session.execute(
+        update(Model)
+        .where(Model.id == model_id)
+        .values(prototypes=prototypes, concept_web=concept_web, fitted_at=fitted_at, updated_at=fitted_at)
+    )
+
+
+def add_training_objects(session: Session, model_id: str, objects: Sequence[dict[str, Any]]) -> None:
+    """Insert labelled objects: dicts with noun, adjectives, entity, effects and verbs."""
+    session.add_all(TrainingObject(model_id=model_id, **values) for values in objects)
+    session.flush()
+
+
+def list_training_objects(session: Session, model_id: str) -> Sequence[TrainingObject]:
+    return session.scalars(
+        select(TrainingObject).where(TrainingObject.model_id == model_id).order_by(TrainingObject.id)
+    ).all()
+
+
+def count_training_objects(session: Session, model_id: str) -> int:
+    statement = select(func.count()).select_from(TrainingObject).where(TrainingObject.model_id == model_id)
+    return int(session.scalar(statement) or 0)

@@ -1,0 +1,199 @@
+"""Shared database and app fixtures: every storage and API test runs on SQLite and on PostgreSQL.
+
+Databases are built by the migrations (``alembic upgrade head``), never by
+``create_all``. SQLite gets a fresh file per test; PostgreSQL gets one database
+for the session (``contextweb_test_<pid>``, so that concurrent test runs never
+share one; dropped at the end) whose tables are emptied between tests. Where
+no PostgreSQL answers on 127.0.0.1:5432 the PostgreSQL variants are skipped,
+saying so. At the end, the data the API tests post: concept-level scenes and
+training objects with synthetic features.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
+from sqlalchemy import Engine, create_engine, text
+
+from app.main import create_app
+from app.settings import Settings
+from core.features.layout import EFFECT_LAYOUT, EFFECT_SIZE, ENTITY_SIZE
+from core.world import World
+from storage.database import create_database_engine
+from storage.migrations import upgrade_to_head
+from storage.models import Base
+
+POSTGRES_SERVER_URL = os.environ.get("CONTEXTWEB_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432")
+POSTGRES_TEST_DATABASE = f"contextweb_test_{os.getpid()}"
+
+
+def _postgres_admin_engine() -> Engine:
+    return create_engine(
+        f"{POSTGRES_SERVER_URL}/postgres", isolation_level="AUTOCOMMIT", connect_args={"connect_timeout": 3}
+    )
+
+
+@pytest.fixture(scope="session")
+def postgres_url() -> Iterator[str]:
+    """A freshly created and migrated PostgreSQL test database (skips when no server is reachable)."""
+    admin = _postgres_admin_engine()
+    try:
+        with admin.connect() as connection:
+            connection.execute(text(f'DROP DATABASE IF EXISTS "{POSTGRES_TEST_DATABASE}" WITH (FORCE)'))
+            connection.execute(text(f'CREATE DATABASE "{POSTGRES_TEST_DATABASE}"'))
+    except Exception as error:  # noqa: BLE001 - any failure to reach the server means: skip the PostgreSQL variant
+        admin.dispose()
+        pytest.skip(
+            f"PostgreSQL not reachable at {POSTGRES_SERVER_URL} ({type(error).__name__}): PostgreSQL variant skipped"
+        )
+    admin.dispose()
+    url = f"{POSTGRES_SERVER_URL}/{POSTGRES_TEST_DATABASE}"
+    engine = create_database_engine(url)
+    upgrade_to_head(engine)
+    engine.dispose()
+    yield url
+    with admin.connect() as connection:
+        connection.execute(text(f'DROP DATABASE IF EXISTS "{POSTGRES_TEST_DATABASE}" WITH (FORCE)'))
+    admin.dispose()
+
+
+def _empty_postgres(url: str) -> None:
+    engine = create_database_engine(url)
+    tables = ", ".join(f'"{table.name}"' for table in Base.metadata.sorted_tables)
+    with engine.begin() as connection:
+        connection.execute(text(f"TRUNCATE {tables} CASCADE"))
+    engine.dispose()
+
+
+BACKENDS = ["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)]
+
+
+def migrated_database(backend: str, request: pytest.FixtureRequest, directory: Path) -> str:
+    """The URL of an empty, migrated database of ``backend`` (SQLite files go in ``directory``)."""
+    if backend == "sqlite":
+        url = f"sqlite:///{directory / 'contextweb.sqlite3'}"
+        engine = create_database_engine(url)
+        upgrade_to_head(engine)
+        engine.dispose()
+        return url
+    url = request.getfixturevalue("postgres_url")
+    _empty_postgres(url)
+    return url
+
+
+@pytest.fixture(params=BACKENDS)
+def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
+    """The URL of an empty, migrated database of each backend."""
+    return migrated_database(request.param, request, tmp_path)
+
+
+@pytest.fixture
+def engine(database_url: str) -> Iterator[Engine]:
+    engine = create_database_engine(database_url)
+    yield engine
+    engine.dispose()
+
+
+def make_settings(database_url: str, **overrides: object) -> Settings:
+    """Settings for a test: explicit values, so the developer's CONTEXTWEB_* variables never leak in."""
+    values: dict[str, object] = {
+        "database_url": database_url,
+        "environment": "development",
+        "write_key": None,
+        "read_key": None,
+        "sqlite_synchronous": "NORMAL",
+    }
+    values.update(overrides)
+    return Settings(**values)
+
+
+@pytest.fixture
+def app(database_url: str) -> FastAPI:
+    return create_app(make_settings(database_url))
+
+
+@pytest.fixture
+def client(app: FastAPI) -> Iterator[TestClient]:
+    with TestClient(app) as client:
+        yield client
+
+
+#: Incremental-LDA settings small enough for tests (growth checks on a short window, few sweeps).
+FAST_HYPERPARAMETERS = {
+    "sweeps": 10,
+    "likelihood_samples": 2,
+    "birth_window": 6,
+    "birth_check_interval": 3,
+    "rejuvenation_tokens": 8,
+    "inference_sweeps": 10,
+    "inference_burn_in": 3,
+}
+
+
+@pytest.fixture
+def model_id(client: TestClient) -> str:
+    """A new model with the paper's vocabulary and :data:`FAST_HYPERPARAMETERS`."""
+    response = client.post("/v1/models", json={"name": "test", "seed": 11, "hyperparameters": FAST_HYPERPARAMETERS})
+    assert response.status_code == 201, response.text
+    return response.json()["id"]
+
+
+CONTEXT_CONCEPTS = {
+    "kitchen": ["cup", "plate", "hard", "short", "silent", "round", "grasp", "move_left"],
+    "playroom": ["ball", "box", "soft", "noisy", "edgy", "thick", "throw", "shake"],
+    "workshop": ["tool", "cylinder", "hard", "tall", "thin", "push_left", "knock_down", "drop"],
+}
+
+
+def concept_scenes(count: int, seed: int) -> list[dict]:
+    """Scene bodies of 2–4 concept-level objects, each scene from one of three contexts."""
+    rng = np.random.default_rng(seed)
+    scenes = []
+    for _ in range(count):
+        concepts = CONTEXT_CONCEPTS[list(CONTEXT_CONCEPTS)[rng.integers(3)]]
+        objects = [{"concepts": list(rng.choice(concepts, size=4, replace=False))} for _ in range(rng.integers(2, 5))]
+        scenes.append({"objects": objects})
+    return scenes
+
+
+CELL = 0.1
+DISPLACEMENT = {
+    "move_right": (CELL, 0, 0), "move_left": (-CELL, 0, 0), "move_forward": (0, CELL, 0), "move_backward": (0, -CELL, 0),
+    "push_right": (CELL, 0, 0), "push_left": (-CELL, 0, 0), "push_forward": (0, CELL, 0), "push_backward": (0, -CELL, 0),
+    "drop": (0, 0, -0.6), "throw": (0.3, 0.3, -0.7), "knock_down": (0, 0, -0.03), "grasp": (0, 0, 0), "shake": (0, 0, 0),
+}  # fmt: skip
+
+
+def synthetic_training_objects(world: World, seed: int) -> list[dict]:
+    """The world's training objects (Table I labels, Table II behaviours) with synthetic features.
+
+    Each concept has its own mean entity vector and each behaviour its own effect, whose
+    position block is the grid step the planner should learn (0.1 m cells; drops and throws
+    leave the table).
+    """
+    rng = np.random.default_rng(seed)
+    vocabulary = world.vocabulary
+    concept_means = {c: rng.normal(0.0, 1.0, ENTITY_SIZE) for c in vocabulary.nouns + vocabulary.adjectives}
+    verb_means = {v: rng.normal(0.0, 1.0, EFFECT_SIZE) for v in vocabulary.verbs}
+    objects = []
+    for obj in world.train_objects:
+        entity = sum(concept_means[c] for c in obj.concepts) + rng.normal(0.0, 0.1, ENTITY_SIZE)
+        effects = {}
+        for verb in obj.behaviours:
+            effect = verb_means[verb] + rng.normal(0.0, 0.05, EFFECT_SIZE)
+            effect[EFFECT_LAYOUT["position"]] = np.array(DISPLACEMENT[verb]) + rng.normal(0.0, 0.005, 3)
+            effects[verb] = effect.tolist()
+        objects.append(
+            {
+                "noun": obj.noun,
+                "adjectives": list(obj.adjectives),
+                "features": {"entity": entity.tolist(), "effects": effects},
+            }
+        )
+    return objects

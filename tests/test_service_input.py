@@ -1,0 +1,105 @@
+"""Bad input is a 4xx whose body names the field, never a 500."""
+
+from __future__ import annotations
+
+import base64
+import json
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from app.main import create_app
+from tests.conftest import make_settings
+
+ENTITY = [0.0] * 91
+EFFECT = [0.0] * 66
+
+
+def _scene(*objects: dict) -> dict:
+    return {"objects": list(objects)}
+
+
+@pytest.mark.parametrize(
+    ("body", "field"),
+    [
+        (_scene({"features": {"entity": [0.0, 1.0, 2.0]}}), "objects[0].features.entity"),
+        (
+            _scene({"features": {"entity": ENTITY, "effects": {"push_left": [0.0] * 65}}}),
+            "objects[0].features.effects.push_left",
+        ),
+        (_scene({"features": {"entity": ENTITY, "effects": {"fly": EFFECT}}}), "objects[0].features.effects.fly"),
+        (_scene({"concepts": ["cup"], "kinds": {"spoon": "utensil"}}), "objects[0].kinds.spoon"),
+        (_scene({"concepts": {"cup": 1.5}}), "objects[0].concepts.cup"),
+        (_scene({"concepts": []}), "objects[0].concepts"),
+        (_scene({"concepts": ["cup"], "features": {"entity": ENTITY}}), "objects[0]"),
+        (_scene({}), "objects[0]"),
+        (_scene(), "objects"),
+        ({"objects": [{"concepts": ["cup"]}], "extra": 1}, "extra"),
+        (_scene({"raw": {"look": {"points": "not base64!"}}}), "objects[0].raw.look.points"),
+        (_scene({"raw": {"look": {"points": [[0.0, 1.0]]}}}), "objects[0].raw.look.points[0]"),
+        (
+            _scene(
+                {
+                    "raw": {
+                        "look": {"points": [[0.0, 0.0, 0.0]]},
+                        "interactions": [
+                            {"behaviour": "fly", "before": {"points": [[0, 0, 0]]}, "after": {"points": [[0, 0, 0]]}}
+                        ],
+                    }
+                }
+            ),
+            "objects[0].raw.interactions[0].behaviour",
+        ),
+    ],
+)
+def test_a_bad_scene_is_a_422_naming_the_field(client: TestClient, model_id: str, body: dict, field: str) -> None:
+    response = client.post(f"/v1/models/{model_id}/scenes", json=body)
+    assert response.status_code == 422, response.text
+    assert response.json()["field"] == field
+    assert response.json()["error"] == "invalid_input" and response.json()["detail"]
+
+
+def test_nan_and_infinity_are_refused(client: TestClient, model_id: str) -> None:
+    for literal in ("NaN", "Infinity", "-Infinity"):
+        entity = ", ".join([literal] + ["0.0"] * 90)
+        body = '{"objects": [{"features": {"entity": [' + entity + "]}}]}"
+        response = client.post(
+            f"/v1/models/{model_id}/scenes", content=body, headers={"Content-Type": "application/json"}
+        )
+        assert response.status_code == 422 and response.json()["field"] == "objects[0].features.entity[0]"
+    nan32 = base64.b64encode(np.array([0.0, np.nan, 0.0], dtype="<f4").tobytes()).decode()
+    response = client.post(f"/v1/models/{model_id}/scenes", json=_scene({"raw": {"look": {"points": nan32}}}))
+    assert response.status_code == 422 and "NaN" in response.json()["detail"]
+
+
+def test_levels_that_need_prototypes_say_so_and_nothing_is_learned(client: TestClient, model_id: str) -> None:
+    response = client.post(f"/v1/models/{model_id}/scenes", json=_scene({"features": {"entity": ENTITY}}))
+    assert response.status_code == 409 and response.json()["error"] == "model_not_fitted"
+    assert client.get(f"/v1/models/{model_id}").json()["scene_count"] == 0
+
+
+def test_unknown_model_malformed_json_and_unknown_route(client: TestClient) -> None:
+    response = client.post("/v1/models/nope/scenes", json=_scene({"concepts": ["cup"]}))
+    assert response.status_code == 404 and response.json()["error"] == "model_not_found"
+    malformed = client.post("/v1/models", content=b"{not json", headers={"Content-Type": "application/json"})
+    assert malformed.status_code == 422 and malformed.json()["error"] == "invalid_input"
+    assert client.get("/v2/anything").json()["error"] == "not_found"
+
+
+def test_a_body_over_the_limit_is_a_413(database_url: str) -> None:
+    with TestClient(create_app(make_settings(database_url, max_body_bytes=4096))) as client:
+        model_id = client.post("/v1/models", json={"name": "small"}).json()["id"]
+        body = json.dumps(_scene(*[{"features": {"entity": ENTITY}}] * 20))
+        response = client.post(
+            f"/v1/models/{model_id}/scenes", content=body, headers={"Content-Type": "application/json"}
+        )
+        assert response.status_code == 413 and response.json()["error"] == "payload_too_large"
+
+        def chunks():
+            yield body.encode()
+
+        streamed = client.post(
+            f"/v1/models/{model_id}/scenes", content=chunks(), headers={"Content-Type": "application/json"}
+        )
+        assert streamed.status_code == 413 and streamed.json()["error"] == "payload_too_large"

@@ -1,0 +1,96 @@
+"""Scenes through the API: learning, idempotent retries, inference that changes nothing, history."""
+
+from __future__ import annotations
+
+import math
+
+from fastapi.testclient import TestClient
+from sqlalchemy import Engine
+
+from storage.database import create_session_makers
+from storage.repositories import incremental_lda as lda_repository
+
+KITCHEN = {"objects": [{"concepts": ["cup", "hard", "short"]}, {"concepts": ["plate", "round"]}]}
+PLAYROOM = {"objects": [{"concepts": ["ball", "soft", "noisy"]}, {"concepts": {"box": 0.9, "edgy": 0.8}}]}
+
+
+def test_a_scene_is_learned_and_answered_with_its_analysis(client: TestClient, model_id: str) -> None:
+    response = client.post(f"/v1/models/{model_id}/scenes", json=PLAYROOM)
+    assert response.status_code == 201
+    answer = response.json()
+    assert answer["scene_id"] == 0 and answer["learned"] is True and answer["model_id"] == model_id
+    assert answer["context_count"] == len(answer["context_posterior"]) == 1
+    assert math.isclose(sum(answer["context_posterior"]), 1.0)
+    first, second = answer["objects"]
+    assert first["active_concepts"] == ["ball", "soft", "noisy"]
+    assert (
+        first["perception"]["ball"] == 1.0 and first["perception"]["box"] == 0.0 and first["perception"]["hard"] == 0.0
+    )
+    assert first["web"] is None and first["in_context"] is None
+    assert second["active_concepts"] == ["box", "edgy"]
+    assert math.isclose(second["perception"]["round"], 0.2)
+    assert client.get(f"/v1/models/{model_id}/scenes/0").json() == answer
+
+
+def test_an_idempotency_key_makes_retries_safe(client: TestClient, model_id: str) -> None:
+    url = f"/v1/models/{model_id}/scenes"
+    first = client.post(url, json=KITCHEN, headers={"Idempotency-Key": "scene-1"})
+    retry = client.post(url, json=KITCHEN, headers={"Idempotency-Key": "scene-1"})
+    assert first.status_code == retry.status_code == 201
+    assert retry.json() == first.json() and retry.headers["Idempotent-Replayed"] == "true"
+    assert client.get(f"/v1/models/{model_id}").json()["scene_count"] == 1
+
+    other_body = client.post(url, json=PLAYROOM, headers={"Idempotency-Key": "scene-1"})
+    assert other_body.status_code == 422
+    assert other_body.json()["error"] == "idempotency_key_reused"
+    assert client.get(f"/v1/models/{model_id}").json()["scene_count"] == 1
+    assert client.post(url, json=KITCHEN, headers={"Idempotency-Key": "scene-2"}).json()["scene_id"] == 1
+
+
+def test_inference_answers_the_same_analysis_and_changes_nothing(client: TestClient, model_id: str) -> None:
+    for body in (KITCHEN, PLAYROOM) * 4:
+        client.post(f"/v1/models/{model_id}/scenes", json=body)
+    before = client.get(f"/v1/models/{model_id}/contexts").json()
+    first = client.post(f"/v1/models/{model_id}/infer", json=KITCHEN)
+    second = client.post(f"/v1/models/{model_id}/infer", json=KITCHEN)
+    assert first.status_code == 200 and first.json() == second.json()
+    answer = first.json()
+    assert answer["scene_id"] is None and answer["learned"] is False
+    assert answer["objects"][0]["active_concepts"] == ["cup", "hard", "short"]
+    assert client.get(f"/v1/models/{model_id}/contexts").json() == before
+    assert client.get(f"/v1/models/{model_id}").json()["scene_count"] == 8
+
+
+def test_history_pages_and_contexts_list(client: TestClient, model_id: str) -> None:
+    for body in (KITCHEN, PLAYROOM) * 3:
+        client.post(f"/v1/models/{model_id}/scenes", json=body)
+    page = client.get(f"/v1/models/{model_id}/scenes", params={"offset": 2, "limit": 3}).json()
+    assert page["total"] == 6 and (page["offset"], page["limit"]) == (2, 3)
+    assert [item["scene_id"] for item in page["items"]] == [2, 3, 4]
+    contexts = client.get(f"/v1/models/{model_id}/contexts", params={"top": 3}).json()
+    assert contexts["scene_count"] == 6
+    assert sum(context["scene_count"] for context in contexts["contexts"]) == 6
+    assert len(contexts["contexts"]) == contexts["context_count"]
+    for context in contexts["contexts"]:
+        probabilities = [concept["probability"] for concept in context["top_concepts"]]
+        assert len(probabilities) == 3 and probabilities == sorted(probabilities, reverse=True)
+    assert client.get(f"/v1/models/{model_id}/scenes/99").status_code == 404
+
+
+def test_stored_counts_match_the_stored_assignments_and_memory(
+    client: TestClient, model_id: str, engine: Engine
+) -> None:
+    for body in (
+        KITCHEN,
+        PLAYROOM,
+        {"objects": [{"concepts": ["tool", "cylinder", "spoon"], "kinds": {"spoon": "noun"}}]},
+    ) * 4:
+        assert client.post(f"/v1/models/{model_id}/scenes", json=body).status_code == 201
+    read, _ = create_session_makers(engine)
+    with read() as session:
+        assert lda_repository.stored_counts(session, model_id) == lda_repository.assignment_counts(session, model_id)
+        stored = lda_repository.load_corpus(session, model_id)
+    assert stored.word_kinds[stored.word_names.index("spoon")] == "noun"
+    contexts = client.get(f"/v1/models/{model_id}/contexts", params={"top": 40}).json()
+    spoon = [c for context in contexts["contexts"] for c in context["top_concepts"] if c["name"] == "spoon"]
+    assert spoon and all(c["kind"] == "noun" for c in spoon)

@@ -1,0 +1,174 @@
+"""Training, fitting and the feature/raw levels, then planning in context (§V-E) through the API.
+
+The training objects are the paper world's 45 with synthetic feature vectors
+(tests/conftest.py, :func:`synthetic_training_objects`): real sensor payloads
+take about a second per object to turn into features, which is the raw level's
+business; it is exercised here on one small cloud.
+"""
+
+from __future__ import annotations
+
+import base64
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from core.features.layout import EFFECT_SIZE, ENTITY_SIZE
+from core.world import World
+from tests.conftest import synthetic_training_objects
+
+
+@pytest.fixture(scope="module")
+def world() -> World:
+    return World.paper(0)
+
+
+@pytest.fixture(scope="module")
+def training_objects(world: World) -> list[dict]:
+    return synthetic_training_objects(world, seed=1)
+
+
+def _fit(client: TestClient, model_id: str, objects: list[dict], world: World) -> None:
+    added = client.post(f"/v1/models/{model_id}/training-objects", json={"objects": objects})
+    assert added.status_code == 201 and added.json() == {"added": 45, "training_object_count": 45}
+    fitted = client.post(f"/v1/models/{model_id}/fit", json={"method": "kmeans"})
+    assert fitted.status_code == 200, fitted.text
+    assert fitted.json()["concept_web_edges"] > 0 and sorted(fitted.json()["behaviours"]) == sorted(
+        world.vocabulary.verbs
+    )
+
+
+@pytest.fixture
+def fitted_model(client: TestClient, world: World, training_objects: list[dict]) -> tuple[str, list[dict]]:
+    """A model trained on the paper world's objects and fitted with k-means prototypes."""
+    model_id = client.post("/v1/models", json={"name": "icub", "seed": 4}).json()["id"]
+    _fit(client, model_id, training_objects, world)
+    return model_id, training_objects
+
+
+def test_fitting_gives_the_prototype_table_and_perceives_features(
+    client: TestClient, fitted_model, world: World
+) -> None:
+    model_id, objects = fitted_model
+    model = client.get(f"/v1/models/{model_id}").json()
+    assert model["prototypes_fitted"] and model["concept_web_fitted"] and model["training_object_count"] == 45
+    table = client.get(f"/v1/models/{model_id}/prototypes").json()
+    assert table["method"] == "kmeans" and len(table["concepts"]) == 29
+    lengths = {c["kind"]: len(c["relevance"]) for c in table["concepts"]}
+    assert lengths == {"noun": ENTITY_SIZE, "adjective": ENTITY_SIZE, "verb": EFFECT_SIZE}
+    assert "cup" in table["table"]
+
+    cups = [o for o in objects if o["noun"] == "cup"][:2]
+    answer = client.post(f"/v1/models/{model_id}/infer", json={"objects": [{"features": o["features"]} for o in cups]})
+    assert answer.status_code == 200
+    for analysed, cup in zip(answer.json()["objects"], cups, strict=True):
+        assert analysed["level"] == "features"
+        assert (
+            max(analysed["perception"], key=lambda c: analysed["perception"][c] if c in world.vocabulary.nouns else -1)
+            == "cup"
+        )
+        assert "cup" in analysed["active_concepts"] and set(cup["adjectives"]) <= set(analysed["active_concepts"])
+        assert analysed["web"]["cup"] > 0.9
+        assert set(analysed["in_context"]) == set(world.vocabulary.concepts)
+
+
+def test_context_is_fed_back_by_eq_6(client: TestClient, world: World, training_objects: list[dict]) -> None:
+    """σ = 1 is the concept web alone; σ = 0 lets the learned context move the probabilities."""
+    scene = {"objects": [{"features": training_objects[0]["features"]}, {"concepts": {"cup": 0.5, "plate": 0.5}}]}
+    answers = {}
+    for sigma in (1.0, 0.0):
+        model_id = client.post("/v1/models", json={"name": f"sigma {sigma}", "sigma": sigma}).json()["id"]
+        _fit(client, model_id, training_objects, world)
+        for kitchen in world.scenes(6, seed=5, contexts=["kitchen"]):
+            client.post(f"/v1/models/{model_id}/scenes", json={"objects": [{"concepts": kitchen.tokens()}]})
+        answers[sigma] = client.post(f"/v1/models/{model_id}/infer", json=scene).json()["objects"]
+    for obj in answers[1.0]:
+        assert obj["in_context"] == pytest.approx(obj["web"])
+    assert answers[0.0][1]["in_context"]["cup"] != pytest.approx(answers[0.0][1]["web"]["cup"], abs=1e-3)
+
+
+def test_extreme_features_are_a_422_naming_the_object(client: TestClient, fitted_model) -> None:
+    model_id, _ = fitted_model
+    extreme = {"objects": [{"concepts": ["cup"]}, {"features": {"entity": [1e308] * ENTITY_SIZE}}]}
+    response = client.post(f"/v1/models/{model_id}/scenes", json=extreme)
+    assert response.status_code == 422 and response.json()["field"] == "objects[1].features"
+    assert client.get(f"/v1/models/{model_id}").json()["scene_count"] == 0
+
+
+def test_a_raw_object_is_extracted_and_perceived(client: TestClient, fitted_model) -> None:
+    model_id, _ = fitted_model
+    rng = np.random.default_rng(0)
+    sphere = rng.normal(size=(300, 3))
+    sphere = 0.04 * sphere / np.linalg.norm(sphere, axis=1, keepdims=True) + np.array([0.0, 0.3, 0.04])
+    encoded = base64.b64encode(sphere.astype("<f4").tobytes()).decode()
+    raw = {
+        "look": {"points": encoded},
+        "interactions": [
+            {
+                "behaviour": "move_left",
+                "before": {"points": encoded},
+                "after": {"points": (sphere - [0.1, 0, 0]).tolist()},
+            }
+        ],
+    }
+    response = client.post(f"/v1/models/{model_id}/scenes", json={"objects": [{"raw": raw}, {"concepts": ["ball"]}]})
+    assert response.status_code == 201, response.text
+    analysed = response.json()["objects"][0]
+    assert analysed["level"] == "raw" and analysed["web"] is not None
+    assert sum(
+        analysed["perception"][noun] for noun in ("box", "ball", "cylinder", "cup", "plate", "tool")
+    ) == pytest.approx(1.0)
+
+
+def test_planning_prunes_by_the_learned_context(
+    client: TestClient, model_id: str, world: World, training_objects: list[dict]
+) -> None:
+    """Fig. 15(b): in a kitchen, cups and plates are only grasped and moved: 156 nodes instead of 2,380.
+
+    The kitchen scenes carry their verbs (Table II) and are learned before the fit, so
+    the context's P(verb | χ) comes from them alone."""
+    for scene in world.scenes(20, seed=2, contexts=["kitchen"]):
+        response = client.post(f"/v1/models/{model_id}/scenes", json={"objects": [{"concepts": scene.tokens()}]})
+        assert response.status_code == 201
+    _fit(client, model_id, training_objects, world)
+    kitchen = {
+        "objects": [{"concepts": ["cup", "hard", "short", "grasp", "move_left"]}, {"concepts": ["plate", "round"]}]
+    }
+    request = {"object": "cup", "start": 8, "goal": 5, "scene": kitchen, "mode": "paper"}
+    plan = client.post(f"/v1/models/{model_id}/plans", json=request)
+    assert plan.status_code == 200, plan.text
+    plan = plan.json()
+    assert plan["context_source"] == "inferred" and plan["status"] == "solved"
+    assert plan["plan"] == ["move_right"] * 3 and plan["positions"] == [8, 7, 6, 5]
+    assert plan["unpruned"]["nodes_generated"] == 2380
+    assert sorted(plan["kept"]) == ["grasp", "move_backward", "move_forward", "move_left", "move_right"]
+    assert plan["nodes_generated"] == 156
+
+    unpruned = client.post(
+        f"/v1/models/{model_id}/plans", json={"object": "cup", "start": 8, "goal": 5, "mode": "paper"}
+    ).json()
+    assert unpruned["context_source"] == "none" and unpruned["pruned"] == [] and unpruned["nodes_generated"] == 2380
+    off_table = client.post(f"/v1/models/{model_id}/plans", json={"object": "cup", "start": 8, "goal": 99})
+    assert off_table.status_code == 422 and off_table.json()["field"] == "goal"
+    too_many = client.post(f"/v1/models/{model_id}/plans", json={"object": "cup", "start": 8, "goal": 5, "context": 99})
+    assert too_many.status_code == 422 and too_many.json()["field"] == "context"
+
+
+def test_training_labels_are_checked(client: TestClient, model_id: str, training_objects: list[dict]) -> None:
+    good = training_objects[0]
+    url = f"/v1/models/{model_id}/training-objects"
+    cases = [
+        ({**good, "noun": "spoon"}, "objects[0].noun"),
+        ({**good, "adjectives": good["adjectives"][:4]}, "objects[0].adjectives"),
+        ({**good, "verbs": {"fly": "grasp"}}, "objects[0].verbs.fly"),
+        (
+            {**good, "features": {**good["features"], "effects": {"fly": [0.0] * EFFECT_SIZE}}},
+            "objects[0].features.effects.fly",
+        ),
+    ]
+    for body, field in cases:
+        response = client.post(url, json={"objects": [body]})
+        assert response.status_code == 422 and response.json()["field"] == field, response.text
+    assert client.post(f"/v1/models/{model_id}/fit", json={}).status_code == 409
+    assert client.get(f"/v1/models/{model_id}/prototypes").status_code == 409

@@ -209,3 +209,20 @@ def test_models_and_vocabulary_must_match(world, web, context_model) -> None:
         contextual_feedback(web, object(), perceptions, world.vocabulary)  # type: ignore[arg-type]
     with pytest.raises(InvalidInputError, match="web"):
         contextual_feedback(object(), context_model, perceptions, world.vocabulary)  # type: ignore[arg-type]
+
+
+def test_webs_settled_beforehand_give_the_identical_result(world, web, context_model) -> None:
+    rng = np.random.default_rng(3)
+    for trial in range(5):
+        perceptions = rng.uniform(0, 1, (4, len(world.vocabulary)))
+        applied = rng.uniform(size=(4, len(world.vocabulary.verbs))) < 0.5
+        fresh = contextual_feedback(web, context_model, perceptions, world.vocabulary, applied=applied, seed=trial)
+        reused = contextual_feedback(
+            web, context_model, perceptions, world.vocabulary, applied=applied, seed=trial,
+            perceived=web.infer_many(perceptions, applied=applied),
+        )
+        for field in ("web", "in_context", "in_context_web", "context_posterior"):
+            assert np.array_equal(getattr(fresh, field), getattr(reused, field)), field
+        assert fresh.active_concepts == reused.active_concepts and fresh.iterations == reused.iterations
+    with pytest.raises(InvalidInputError, match="perceived"):
+        contextual_feedback(web, context_model, perceptions, world.vocabulary, applied=applied, perceived=[])

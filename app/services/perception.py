@@ -37,7 +37,7 @@ import numpy as np
 from app.errors import InvalidInput, ModelNotFitted
 from app.schemas.observations import InteractionIn, ObjectFeatures, RawObject, as_array
 from app.schemas.scenes import ObjectLevel, SceneObject
-from core.concept_web import ConceptWeb
+from core.concept_web import ConceptWeb, WebInference
 from core.context.feedback import contextual_feedback
 from core.context.incremental import IncrementalLDA
 from core.errors import InvalidInputError
@@ -80,13 +80,17 @@ class SceneAnalysis:
     """(n_objects, n_concepts) perception over the vocabulary, the webs' evidence."""
     applied: np.ndarray = field(repr=False)
     """(n_objects, n_verbs) behaviours applied to each object."""
+    settled: tuple[WebInference, ...] | None = field(default=None, repr=False)
+    """The concept webs settled on ``perceptions`` (None without a fitted web): step 1 of Eq. 6's loop."""
+    settled_by: ConceptWeb | None = field(default=None, repr=False)
+    """The web that settled them (a fit may replace the model's web before :func:`in_context`)."""
 
     @property
     def words(self) -> list[str]:
         return [word for obj in self.objects for word in obj.active_concepts]
 
 
-@dataclass
+@dataclass(frozen=True)
 class _Evidence:
     """Perception over the vocabulary, which concepts carry evidence, and names outside it."""
 
@@ -103,7 +107,9 @@ def analyse_objects(perception: Perception, objects: Sequence[SceneObject], mode
     perceptions = np.stack([item.probabilities for item in evidence])
     applied = np.stack([item.applied for item in evidence])
     web = perception.concept_web
-    settled = web.infer_many(perceptions, applied=applied) if web is not None else [None] * len(evidence)
+    settled: Sequence[WebInference | None] = (
+        web.infer_many(perceptions, applied=applied) if web is not None else [None] * len(evidence)
+    )
     concepts = perception.vocabulary.concepts
     results = []
     for item, inference in zip(evidence, settled, strict=True):
@@ -121,7 +127,8 @@ def analyse_objects(perception: Perception, objects: Sequence[SceneObject], mode
                 web=None if inference is None else _named(concepts, inference.probabilities),
             )
         )
-    return SceneAnalysis(results, perceptions, applied)
+    webs = None if web is None else tuple(item for item in settled if item is not None)
+    return SceneAnalysis(results, perceptions, applied, webs, web)
 
 
 def in_context(
@@ -142,13 +149,14 @@ def in_context(
         applied=analysis.applied,
         sigma=sigma,
         seed=seed,
+        perceived=analysis.settled if analysis.settled_by is web else None,
     )
     concepts = perception.vocabulary.concepts
     objects = [
         ObjectResult(obj.level, obj.active_concepts, obj.perception, obj.web, _named(concepts, row))
         for obj, row in zip(analysis.objects, feedback.in_context, strict=True)
     ]
-    return SceneAnalysis(objects, analysis.perceptions, analysis.applied)
+    return SceneAnalysis(objects, analysis.perceptions, analysis.applied, analysis.settled, analysis.settled_by)
 
 
 def _named(concepts: Sequence[str], values: np.ndarray) -> dict[str, float]:
@@ -209,9 +217,18 @@ def _concept_evidence(vocabulary: Vocabulary, concepts: Sequence[str] | Mapping[
     """Perception of a named object: the nouns and each pair named in completed to a distribution.
 
     In a group (the nouns, or one pair) with a name given, the unnamed members
-    share what the named ones leave, and a total above 1 is rescaled.
+    share what the named ones leave, and a total above 1 is rescaled. A pure
+    function of the names (and probabilities) given, which a robot's scenes
+    repeat: it is memoised, its arrays read-only.
     """
-    given = dict.fromkeys(concepts, 1.0) if not isinstance(concepts, Mapping) else dict(concepts)
+    if isinstance(concepts, Mapping):
+        return _named_evidence(vocabulary, tuple(concepts.items()))
+    return _named_evidence(vocabulary, tuple((name, 1.0) for name in concepts))
+
+
+@functools.lru_cache(maxsize=4096)
+def _named_evidence(vocabulary: Vocabulary, named_probabilities: tuple[tuple[str, float], ...]) -> _Evidence:
+    given = dict(named_probabilities)
     layout = _layout(vocabulary)
     probabilities = np.full(len(vocabulary), NO_EVIDENCE)
     named = np.zeros(len(vocabulary), dtype=bool)
@@ -238,7 +255,10 @@ def _concept_evidence(vocabulary: Vocabulary, concepts: Sequence[str] | Mapping[
         probabilities[members] = np.where(
             totals > 0, probabilities[members] / np.where(totals > 0, totals, 1.0), uniform
         )
-    return _Evidence("concepts", probabilities, informed, named[layout.verbs].copy(), unseen)
+    evidence = _Evidence("concepts", probabilities, informed, named[layout.verbs].copy(), unseen)
+    for array in (evidence.probabilities, evidence.informed, evidence.applied):
+        array.flags.writeable = False
+    return evidence
 
 
 def _map_without_web(vocabulary: Vocabulary, item: _Evidence) -> np.ndarray:

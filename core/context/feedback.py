@@ -49,6 +49,7 @@ or one learned without verbs): there P*(c) is the web's P(c), whatever σ.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -149,6 +150,7 @@ def contextual_feedback(
     tolerance: float = DEFAULT_TOLERANCE,
     max_iterations: int = DEFAULT_MAX_ITERATIONS,
     seed: int = 0,
+    perceived: Sequence[WebInference] | None = None,
 ) -> FeedbackResult:
     """Interpret a scene's objects in context by iterating webs, context and Eq. 6 (§IV-D).
 
@@ -156,7 +158,9 @@ def contextual_feedback(
     probabilities in ``vocabulary.concepts`` order (as :func:`core.prototypes.perceive`
     gives them); ``applied`` (n_objects, n_verbs) marks the verbs whose behaviour
     was applied (see :meth:`ConceptWeb.infer`). ``sigma`` = 1 is the web alone,
-    0 the context alone.
+    0 the context alone. ``perceived`` is step 1 when the caller has already run it:
+    ``web.infer_many(perceptions, applied=applied)``, one inference per object (a
+    service that shows the web on the perception alone need not settle it twice).
     """
     sigma, tolerance, max_iterations, seed = _checked_settings(sigma, tolerance, max_iterations, seed)
     if not isinstance(web, ConceptWeb):
@@ -165,7 +169,12 @@ def contextual_feedback(
         raise InvalidInputError("vocabulary", "must be the Vocabulary the concept web was fitted on")
     perceptions = _checked_perceptions(perceptions, len(vocabulary))
     table = context_concepts(context_model, vocabulary)
-    settled = web.infer_many(perceptions, applied=applied)
+    if perceived is None:
+        settled = web.infer_many(perceptions, applied=applied)
+    elif len(perceived) != len(perceptions) or not all(isinstance(item, WebInference) for item in perceived):
+        raise InvalidInputError("perceived", f"expected one WebInference per object ({len(perceptions)})")
+    else:
+        settled = list(perceived)
     plain = _marginals(settled)
     evidence = np.ones(perceptions.shape, dtype=bool)
     if applied is not None:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sqlalchemy import func, insert, select, update
+from sqlalchemy import Connection, bindparam, func, insert, select, update
 from sqlalchemy.orm import Session
 
 from storage.models import ContextWordCount, IncrementalLdaState, Token, Word
@@ -65,34 +65,50 @@ def create_state(
 def save_scene(session: Session, model_id: str, changes: SceneChanges) -> None:
     """Persist one scene's changes; the scene row itself is written by the scenes repository."""
     _insert_words(session, model_id, changes.new_words)
+    connection = session.connection()
     first, scene = changes.first_token, changes.scene_id
     tokens = zip(changes.token_words, changes.token_contexts, strict=True)
-    _executemany(session, _INSERT_TOKEN, [(model_id, first + i, scene, w, k) for i, (w, k) in enumerate(tokens)])
-    _executemany(session, _UPDATE_TOKEN, [(k, model_id, token) for token, k in changes.reassigned])
-    _executemany(session, _UPSERT_COUNT, [(model_id, k, w, n) for k, w, n in changes.counts])
-    session.execute(
-        update(IncrementalLdaState)
-        .where(IncrementalLdaState.model_id == model_id)
-        .values(scene_count=changes.scene_id + 1, context_count=changes.context_count, state=changes.state)
+    _executemany(connection, _INSERT_TOKEN, [(model_id, first + i, scene, w, k) for i, (w, k) in enumerate(tokens)])
+    _executemany(connection, _UPDATE_TOKEN, [(k, model_id, token) for token, k in changes.reassigned])
+    _executemany(connection, _UPSERT_COUNT, [(model_id, k, w, n) for k, w, n in changes.counts])
+    connection.execute(
+        _UPDATE_STATE,
+        {
+            "state_model_id": model_id,
+            "new_scene_count": changes.scene_id + 1,
+            "new_context_count": changes.context_count,
+            "new_state": changes.state,
+        },
     )
 
 
-# The three statements of every scene, in the SQL that SQLite and PostgreSQL share, run
-# through the driver's executemany: built by SQLAlchemy they cost more per row (parameter
-# processing for ~100 rows a scene) than the database takes to store them. ``?`` stands
-# for the driver's placeholder.
+# The statements of every scene. The three per-row ones are in the SQL that SQLite and
+# PostgreSQL share, run through the driver's executemany: built by SQLAlchemy they cost
+# more per row (parameter processing for ~100 rows a scene) than the database takes to
+# store them; ``?`` stands for the driver's placeholder. The state update is built once
+# (SQLAlchemy then reuses its compiled form) and keeps SQLAlchemy's JSON and
+# ``updated_at`` handling; all go through the one connection of the transaction.
 _INSERT_TOKEN = "INSERT INTO token (model_id, id, scene_id, word_id, context) VALUES (?, ?, ?, ?, ?)"
 _UPDATE_TOKEN = "UPDATE token SET context = ? WHERE model_id = ? AND id = ?"
 _UPSERT_COUNT = (
     "INSERT INTO context_word_count (model_id, context, word_id, count) VALUES (?, ?, ?, ?) "
     "ON CONFLICT (model_id, context, word_id) DO UPDATE SET count = excluded.count"
 )
+_STATE_TABLE = IncrementalLdaState.__table__
+_UPDATE_STATE = (
+    update(_STATE_TABLE)
+    .where(_STATE_TABLE.c.model_id == bindparam("state_model_id"))
+    .values(
+        scene_count=bindparam("new_scene_count"),
+        context_count=bindparam("new_context_count"),
+        state=bindparam("new_state"),
+    )
+)
 
 
-def _executemany(session: Session, statement: str, rows: Sequence[tuple[object, ...]]) -> None:
+def _executemany(connection: Connection, statement: str, rows: Sequence[tuple[object, ...]]) -> None:
     if not rows:
         return
-    connection = session.connection()
     if connection.dialect.paramstyle != "qmark":
         statement = statement.replace("?", "%s")
     connection.exec_driver_sql(statement, list(rows))

@@ -13,7 +13,11 @@ from storage.models import Scene
 
 def add_scene(session: Session, model_id: str, scene_id: int, **values: Any) -> None:
     """Insert one scene row: idempotency_key, request_hash, context_count, map_context, context_posterior, answer."""
-    session.execute(insert(Scene.__table__), [{"model_id": model_id, "id": scene_id, **values}])
+    session.connection().execute(_INSERT_SCENE, {"model_id": model_id, "id": scene_id, **values})
+
+
+#: Built once: SQLAlchemy reuses its compiled form (and still converts the JSON and time columns).
+_INSERT_SCENE = insert(Scene.__table__)
 
 
 def get_scene(session: Session, model_id: str, scene_id: int) -> Scene | None:

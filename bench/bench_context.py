@@ -37,9 +37,10 @@ import tomotopy as tp
 
 from bench import RESULTS
 from core.context import IncrementalLDA, LDAState
+from core.paper_timings import CONTEXT_DETECTION_MS
 from core.world import WorldConfig, generate_scenes
 
-PAPER_DETECTION_MS = 209.82
+PAPER_DETECTION_MS = CONTEXT_DETECTION_MS[0]
 ALPHA, XI = 0.1, 0.1
 
 

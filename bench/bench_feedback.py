@@ -34,10 +34,11 @@ from bench import RESULTS
 from core.concept_web import ConceptWeb
 from core.context import IncrementalLDA
 from core.context.feedback import contextual_feedback
+from core.paper_timings import CONTEXT_DETECTION_MS, WEB_CONVERGENCE_MS
 from core.world import World
 
-PAPER_CONTEXT_MS = 209.82
-PAPER_WEB_MS = 1395.22
+PAPER_CONTEXT_MS = CONTEXT_DETECTION_MS[0]
+PAPER_WEB_MS = WEB_CONVERGENCE_MS[0]
 OBJECTS_PER_SCENE = 5
 
 

@@ -43,6 +43,7 @@ from core import experiments
 from core.concept_web import ConceptWeb
 from core.context import IncrementalLDA
 from core.errors import InvalidInputError
+from core.paper_timings import CONTEXT_DETECTION_MS, WEB_CONVERGENCE_MS
 from core.vocabulary import paper_vocabulary
 from core.world import WorldConfig, generate_scenes, make_objects, table_vi_scenes
 
@@ -65,8 +66,8 @@ PAPER_TABLE_VII_NOUN_CONFIDENCES = (0.43, 0.29, 0.26)
 #: Fig. 15 / §V-E: nodes of the breadth-first trees: 13 behaviours unpruned, 5 in the Kitchen, 9 in the Playroom.
 PAPER_FIG_15_NODES = {"unpruned_cup_8_to_5": 2380, "kitchen_cup_8_to_5": 156, "playroom_ball_7_to_1": 820}
 #: §V-F: mean ± standard deviation over 10 runs (non-optimised code, i5 desktop), milliseconds.
-PAPER_DETECTION_MS = (209.82, 3.38)
-PAPER_WEB_MS = (1395.22, 15.31)
+PAPER_DETECTION_MS = CONTEXT_DETECTION_MS
+PAPER_WEB_MS = WEB_CONVERGENCE_MS
 
 # --- The criteria's own thresholds ----------------------------------------------------------------
 

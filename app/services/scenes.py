@@ -39,8 +39,6 @@ def learn_scene(
 ) -> tuple[str, bool]:
     """Learn ``body`` online; returns the answer (the ``SceneRead`` JSON, stored byte for byte)
     and whether it is a stored one (idempotent replay)."""
-    analysis = analyse_objects(model.perception, body.objects, model.id)
-    words = _scene_words(analysis)
     request_hash = hashlib.sha256(body.model_dump_json().encode()).hexdigest()
     if idempotency_key is not None:
         stored = scene_repository.find_by_idempotency_key(session, model.id, idempotency_key)
@@ -48,6 +46,9 @@ def learn_scene(
             if stored.request_hash != request_hash:
                 raise IdempotencyKeyReused(idempotency_key)
             return stored.answer, True
+    # After the replay check: a retried scene costs no perception (nor, for raw payloads, extraction).
+    analysis = analyse_objects(model.perception, body.objects, model.id)
+    words = _scene_words(analysis)
     analysis = in_context(model.perception, model.incremental_lda, analysis, sigma=model.sigma, seed=model.seed)
     model.changing = True
     first_token = model.incremental_lda.lda_state.n_tokens

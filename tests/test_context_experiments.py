@@ -32,8 +32,10 @@ def test_contexts_experiment_records_fig11_and_where_growth_stops(tmp_path: Path
     assert {p.name for p in tmp_path.iterdir()} == {"fig11.csv", "stop_k.csv", "fig11.png"}
     curve = summary["fig11"]["20"]["c_low"]["mean"]
     assert len(curve) == 3 and curve[0] > curve[2]
-    assert summary["stop_k"]["paper@20"]["likelihood"] == [3, 3]
-    assert summary["hit_rates"]["generic-2@30"]["likelihood"] == "2/2"
+    assert summary["stop_k"]["paper@20"]["scenes"] == [3, 3]
+    assert summary["stop_k"]["paper@3"]["scenes"] == summary["stop_k"]["paper@3"]["present"]
+    assert summary["hit_rates"]["generic-2@30"]["scenes"] == "2/2"
+    assert set(summary["hit_rates"]["paper@20"]) == {"scenes", "likelihood", "paper"}
 
 
 def test_convergence_experiment_traces_every_solver(tmp_path: Path) -> None:

@@ -127,8 +127,8 @@ def _contexts(found_at_20: list[int], k_of_min_entropy: int = 3, c_low_at_3: flo
     return {
         "fig11": {"1": {**curve, "k_of_min_entropy": 1}, "20": curve},
         "stop_k": {
-            "paper@1": {"present": [1] * 10, "likelihood": [2] * 10, "paper": [2] * 10},
-            "paper@20": {"present": [3] * 10, "likelihood": found_at_20, "paper": [6] * 10},
+            "paper@1": {"present": [1] * 10, "scenes": [2] * 10, "likelihood": [2] * 10, "paper": [2] * 10},
+            "paper@20": {"present": [3] * 10, "scenes": found_at_20, "likelihood": [2] * 10, "paper": [6] * 10},
         },
     }
 

@@ -8,6 +8,8 @@
   :meth:`~IncrementalLDA.top_concepts`;
 - :mod:`core.context.metrics`: l̂ of Eq. 7, H̃ of Eq. 8, Dirichlet-multinomial
   log-likelihoods;
+- :mod:`core.context.scene_partition`: the evidence of partitions of the scenes into
+  contexts, by which the default rule chooses K;
 - :mod:`core.context.lda`: the sampler state and Gibbs sweeps the model is built on.
 
 docs/context.md explains the choices the paper leaves open.

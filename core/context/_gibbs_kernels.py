@@ -390,3 +390,51 @@ def split_scenes(
             _count_block(block, n_block, d, previous, 1, words, n_wk, n_k, n_dk)
         for j in range(n_block):
             z[block[j]] = target
+
+
+@numba.njit(cache=True, nogil=True)
+def scene_to_one_context(
+    words: np.ndarray,
+    z: np.ndarray,
+    start: int,
+    stop: int,
+    d: int,
+    n_wk: np.ndarray,
+    n_k: np.ndarray,
+    n_dk: np.ndarray,
+    n_contexts: int,
+    alpha: float,
+    xi: float,
+    vocab_size: int,
+    u: float,
+) -> int:
+    """Put the tokens ``start:stop`` of scene ``d`` (all of it) into one context, drawn from the
+    exact collapsed probability of the whole block joining each context given every other
+    token (Eq. 5's numerators multiplied up, :func:`_block_log_weight`); returns the context.
+    Tokens with z = -1 are new; the others leave their contexts first."""
+    v_xi = vocab_size * xi
+    n_block = stop - start
+    block = np.arange(start, stop)
+    for i in range(start, stop):
+        if z[i] >= 0:
+            n_wk[words[i], z[i]] -= 1
+            n_k[z[i]] -= 1
+            n_dk[d, z[i]] -= 1
+    log_weights = np.empty(n_contexts)
+    best = -np.inf
+    for k in range(n_contexts):
+        log_weights[k] = _block_log_weight(block, n_block, d, k, words, n_wk, n_k, n_dk, alpha, xi, v_xi)
+        _count_block(block, n_block, d, k, -1, words, n_wk, n_k, n_dk)
+        best = max(best, log_weights[k])
+    total = 0.0
+    for k in range(n_contexts):
+        log_weights[k] = math.exp(log_weights[k] - best)
+        total += log_weights[k]
+    target, cumulative = 0, log_weights[0]
+    while target < n_contexts - 1 and cumulative <= u * total:
+        target += 1
+        cumulative += log_weights[target]
+    _count_block(block, n_block, d, target, 1, words, n_wk, n_k, n_dk)
+    for i in range(start, stop):
+        z[i] = target
+    return target

@@ -1,9 +1,17 @@
 """Incremental-LDA (§IV-C, Algorithm 2): contexts of scenes, learned online with K grown on demand.
 
-Two rules decide when K grows (``k_selection``; docs/context.md has the
-measurements behind the choice):
+Three rules decide when K grows (``k_selection``; docs/context.md, "Choosing K",
+has the measurements behind the choice):
 
-- ``"likelihood"`` (default), a birth move: propose K + 1 by a K-incremental
+- ``"scenes"`` (default), scene-partition evidence: a context belongs to a scene
+  (§V draws each scene from one context), so K + 1 is kept when the best partition
+  of the scenes into K + 1 contexts has more evidence than the best into K, each
+  context's concepts under a Dirichlet centred on the corpus's concept frequencies
+  (:mod:`core.context.scene_partition`). The new context then starts from that
+  partition (Algorithm 3's start with the low-confidence tokens being those of the
+  scenes that move), followed by Eq. 5's Gibbs sweeps. It finds the contexts
+  present from 3 scenes on; the two rules below do not.
+- ``"likelihood"``, a token-level birth move: propose K + 1 by a K-incremental
   start (Algorithm 3) and keep it only if it explains the scenes better. The score
   is the collapsed joint log-likelihood log P(w, z | K) (Griffiths & Steyvers 2004)
   plus the entropy of the sampler's conditionals Σ_i H(z_i | z_¬i, w), at a few
@@ -23,8 +31,9 @@ measurements behind the choice):
   context, max_χ φ_χc (a measure normalised over contexts would be 1 for every
   concept at K = 1, and K would never grow).
 
-Online (:meth:`IncrementalLDA.learn_scene`) the model never re-learns: a scene's
-tokens are sampled for ``scene_sweeps`` sweeps, each together with
+Online (:meth:`IncrementalLDA.learn_scene`) the model never re-learns: a new scene
+first joins one context as a whole (drawn from the exact collapsed probabilities
+of Eq. 5's model), then its tokens are sampled for ``scene_sweeps`` sweeps, each together with
 ``rejuvenation_tokens`` earlier tokens drawn uniformly (Canini, Shi & Griffiths
 2009), and growth is checked only on a window of the last ``birth_window`` scenes
 (after each of the first ``birth_check_interval`` scenes, then every
@@ -37,17 +46,19 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any, Literal
 
 import numpy as np
 
 from core.context.lda import LDAState, layout_problems
 from core.context.metrics import PAPER_RHO, contextual_entropy
+from core.context.scene_partition import SceneBlocks, best_partition, corpus_centred_prior
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary
 
-KSelection = Literal["likelihood", "paper"]
-K_SELECTIONS: tuple[str, ...] = ("likelihood", "paper")
+KSelection = Literal["scenes", "likelihood", "paper"]
+K_SELECTIONS: tuple[str, ...] = ("scenes", "likelihood", "paper")
 
 
 @dataclass(frozen=True)
@@ -58,8 +69,9 @@ class Hyperparameters:
     """α: symmetric Dirichlet prior on a scene's contexts (Eq. 5; §V-B uses 0.1)."""
     xi: float = 0.1
     """ξ: symmetric Dirichlet prior on a context's concepts (Eq. 5; §V-B uses 0.1)."""
-    k_selection: KSelection = "likelihood"
-    """How K grows: ``"likelihood"`` (birth move) or ``"paper"`` (C_low ≠ ∅)."""
+    k_selection: KSelection = "scenes"
+    """How K grows: ``"scenes"`` (scene-partition evidence), ``"likelihood"`` (token-level
+    birth move) or ``"paper"`` (C_low ≠ ∅)."""
     tau: float = 0.03
     """τ: a concept is in C_low when its confidence max_χ φ_χc is below τ (docs/context.md
     has the τ scan behind 0.03)."""
@@ -71,6 +83,23 @@ class Hyperparameters:
     """Gibbs sweeps after each K-incremental start (batch, or over the growth window)."""
     likelihood_samples: int = 10
     """Samples averaged by the birth move's score."""
+    scene_prior_strength: float = 1.0
+    """``"scenes"``: pseudo-counts per concept of the corpus-centred Dirichlet on a context's
+    concepts (:func:`core.context.scene_partition.corpus_centred_prior`)."""
+    partition_scans: int = 25
+    """``"scenes"``: sampled scans of each partition search in :meth:`IncrementalLDA.fit`."""
+    online_partition_scans: int = 10
+    """``"scenes"``: the same online, where searches start from the model's own partition."""
+    partition_random_starts: int = 4
+    """``"scenes"``, in :meth:`IncrementalLDA.fit`: searches from random partitions, besides
+    those from the model's own (online, where the model's partition is already a good
+    start, only the latter: a check then costs milliseconds)."""
+    birth_margin: float = 0.0
+    """``"scenes"``: :meth:`IncrementalLDA.fit` keeps K + 1 if its evidence exceeds K's by more
+    than this many nats."""
+    online_birth_margin: float = 3.0
+    """``"scenes"``: the same margin online, where a test runs every ``birth_check_interval``
+    scenes (3 nats: a Bayes factor of 20, "strong" on Kass & Raftery's scale)."""
     growth_z: float = 0.0
     """:meth:`IncrementalLDA.fit` keeps K + 1 only if the mean score rises by more than
     this many standard errors (of the difference of the two sample means)."""
@@ -99,7 +128,7 @@ class Hyperparameters:
     """Of those, the first ones not averaged."""
 
     def __post_init__(self) -> None:
-        for name in ("alpha", "xi"):
+        for name in ("alpha", "xi", "scene_prior_strength"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
                 raise InvalidInputError(name, f"must be a positive number, got {value!r}")
@@ -109,7 +138,7 @@ class Hyperparameters:
             raise InvalidInputError("tau", f"must lie in (0, 1), got {self.tau!r}")
         if not (isinstance(self.delta, int | float) and 0.0 <= self.delta <= 1.0):
             raise InvalidInputError("delta", f"must lie in [0, 1], got {self.delta!r}")
-        for name in ("growth_z", "online_growth_z"):
+        for name in ("growth_z", "online_growth_z", "birth_margin", "online_birth_margin"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (isinstance(value, int | float) and np.isfinite(value) and value >= 0):
                 raise InvalidInputError(name, f"must be a number >= 0, got {value!r}")
@@ -121,6 +150,8 @@ class Hyperparameters:
             "sample_lag",
             "scene_sweeps",
             "birth_proposals",
+            "partition_scans",
+            "online_partition_scans",
             "birth_window",
             "birth_check_interval",
             "inference_sweeps",
@@ -128,7 +159,7 @@ class Hyperparameters:
             value = getattr(self, name)
             if not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
                 raise InvalidInputError(name, f"must be an integer >= 1, got {value!r}")
-        for name in ("rejuvenation_tokens", "inference_burn_in", "split_scans"):
+        for name in ("rejuvenation_tokens", "inference_burn_in", "split_scans", "partition_random_starts"):
             value = getattr(self, name)
             if not (isinstance(value, int) and not isinstance(value, bool) and value >= 0):
                 raise InvalidInputError(name, f"must be an integer >= 0, got {value!r}")
@@ -260,7 +291,7 @@ class IncrementalLDA:
         if n_contexts is None:
             self._state.assignments[:] = 0
             self._state.recount()
-            self._grow_contexts(0, h.growth_z)
+            self._grow_contexts(0, online=False)
         else:
             self._state.initialize_randomly(self._rng)
             self._state.sweep(self._rng, h.sweeps)
@@ -271,7 +302,7 @@ class IncrementalLDA:
         with the low-confidence tokens (and each other token with probability δ). Those are
         the tokens of C_low under the ``paper`` rule, the tokens of the scene explained worst
         (the birth move's first proposal, then ``split_scans`` scene-level split passes) under
-        ``likelihood``. For experiments that force
+        ``likelihood`` and ``scenes``. For experiments that force
         K (Figs. 10 and 11); follow it with :meth:`sweep`."""
         h = self.hyperparameters
         if self.context_cap_reached:
@@ -299,6 +330,7 @@ class IncrementalLDA:
         ids = self._ids(words)
         earlier = state.n_tokens
         scene = state.append_document(ids)
+        state.scene_to_one_context(scene, self._rng)
         scene_tokens = np.arange(earlier, state.n_tokens, dtype=np.int64)
         rejuvenated = self._rng.integers(0, earlier, size=(h.scene_sweeps, h.rejuvenation_tokens if earlier else 0))
         touched = [rejuvenated.ravel()]
@@ -313,7 +345,7 @@ class IncrementalLDA:
             window = np.arange(state.doc_offsets[first_doc], earlier, dtype=np.int64)
             touched.append(window)
             previous.append(state.assignments[window].copy())
-            self._grow_contexts(first_doc, h.online_growth_z)
+            self._grow_contexts(first_doc, online=True)
         reassigned, old_contexts = _first_occurrences(np.concatenate(touched), np.concatenate(previous))
         new_contexts = state.assignments[reassigned]
         changed = old_contexts != new_contexts
@@ -343,11 +375,14 @@ class IncrementalLDA:
         seen = scene + 1
         return not self.context_cap_reached and (seen <= h.birth_check_interval or seen % h.birth_check_interval == 0)
 
-    def _grow_contexts(self, first_doc: int, growth_z: float) -> None:
+    def _grow_contexts(self, first_doc: int, online: bool) -> None:
         """Algorithm 2's inner loop on scenes ``first_doc:`` (all of them in batch, the window online)."""
         state, h = self._state, self.hyperparameters
         while state.n_contexts < h.max_contexts:
-            if h.k_selection == "paper":
+            if h.k_selection == "scenes":
+                if not self._scene_birth(first_doc, online):
+                    return
+            elif h.k_selection == "paper":
                 low = low_confidence_concepts(state, h.tau, first_doc)
                 if not low.any():
                     return
@@ -355,8 +390,58 @@ class IncrementalLDA:
                     low[state.words[state.window_tokens(first_doc)]], h.delta, self._rng, first_doc
                 )
                 state.sweep(self._rng, h.sweeps, first_doc)
-            elif not self._birth_move(first_doc, growth_z):
+            elif not self._birth_move(first_doc, h.online_growth_z if online else h.growth_z):
                 return
+
+    def _scene_birth(self, first_doc: int, online: bool) -> bool:
+        """The ``"scenes"`` rule's test on scenes ``first_doc:``: open context K + 1 if the best
+        partition of the scenes into K + 1 contexts has more evidence than the best into K,
+        by more than ``birth_margin`` (``online_birth_margin``) nats
+        (:mod:`core.context.scene_partition`).
+
+        The searches for K start from the model's own partition (each scene's dominant
+        context); those for K + 1 from the best K partition and from it with each of the
+        ``birth_proposals`` worst-explained scenes moved to the new context; in batch both
+        also from ``partition_random_starts`` random partitions. A new context starts from
+        the winning partition (every token in its scene's context); in batch ``sweeps``
+        Gibbs sweeps of Eq. 5 follow, online the updates' rejuvenation takes over
+        (docs/context.md, "Choosing K").
+        """
+        state, h = self._state, self.hyperparameters
+        n_contexts = state.n_contexts
+        blocks = self._scene_blocks(first_doc)
+        prior = corpus_centred_prior(state.n_wk.sum(axis=1).astype(np.float64), h.xi, h.scene_prior_strength)
+        own = state.n_dk[first_doc:].argmax(axis=1)
+        search = partial(
+            best_partition, blocks, prior=prior, alpha=h.alpha, rng=self._rng,
+            random_starts=0 if online else h.partition_random_starts,
+            sampled_scans=h.online_partition_scans if online else h.partition_scans,
+        )  # fmt: skip
+        current = search(n_contexts, starts=[own])
+        worst_first = np.argsort(state.scene_fit(first_doc), kind="stable")[: h.birth_proposals]
+        scenes = np.arange(blocks.n_scenes)
+        starts = [current.labels] + [np.where(scenes == worst, n_contexts, current.labels) for worst in worst_first]
+        proposed = search(n_contexts + 1, starts=starts)
+        if proposed.evidence - current.evidence <= (h.online_birth_margin if online else h.birth_margin):
+            return False
+        state.add_context()
+        tokens = state.window_tokens(first_doc)
+        state.reassign(tokens, proposed.labels[state.scene_of(tokens) - first_doc].astype(np.int32))
+        if not online:
+            state.sweep(self._rng, h.sweeps, first_doc)
+        return True
+
+    def _scene_blocks(self, first_doc: int) -> SceneBlocks:
+        """Concept counts of scenes ``first_doc:``, with what each context holds from the scenes before."""
+        state = self._state
+        tokens = state.window_tokens(first_doc)
+        words = state.words[tokens].astype(np.int64)
+        window_counts = np.zeros((state.n_contexts, state.vocab_size))
+        np.add.at(window_counts, (state.assignments[tokens], words), 1.0)
+        return SceneBlocks.from_tokens(
+            words, state.scene_of(tokens) - first_doc, state.n_documents - first_doc, state.vocab_size,
+            state.n_kw - window_counts,
+        )  # fmt: skip
 
     def _birth_move(self, first_doc: int, growth_z: float) -> bool:
         """Propose context K + 1 on scenes ``first_doc:``; keep it if their score improves

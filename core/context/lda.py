@@ -241,6 +241,18 @@ class LDAState:
             self._draw_uniforms(rng, tokens.shape[0]),
         )
 
+    def scene_to_one_context(self, scene: int, rng: np.random.Generator) -> int:
+        """Assign every token of ``scene`` as one block: the whole scene joins one context, drawn
+        from the exact collapsed probabilities of Eq. 5's model given every other token (a
+        scene comes from one context, §V); returns the context."""
+        start, stop = int(self._offsets[scene]), int(self._offsets[scene + 1])
+        return int(
+            kernels.scene_to_one_context(
+                self._words, self._z, start, stop, scene, self._n_wk, self._n_k, self._n_dk,
+                self.n_contexts, self.alpha, self.xi, self.vocab_size, float(rng.random()),
+            )
+        )  # fmt: skip
+
     def reassign(self, tokens: np.ndarray, contexts: np.ndarray) -> None:
         """Set the contexts of assigned ``tokens`` to ``contexts``, keeping the counts consistent."""
         kernels.reassign_tokens(

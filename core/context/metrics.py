@@ -17,18 +17,29 @@ PAPER_RHO = 0.25
 
 
 def dirichlet_multinomial_log_likelihood(
-    counts: np.ndarray, totals: np.ndarray, concentration: float, dimension: int
+    counts: np.ndarray,
+    totals: np.ndarray,
+    concentration: float | np.ndarray,
+    dimension: int,
+    prior_total: float | None = None,
 ) -> float:
     """Σ_r log ∫ Π_c p_c^{n_rc} Dir(p | β) dp for count rows ``counts`` (one row per
-    Dirichlet draw, ``dimension`` categories, symmetric β = ``concentration``):
+    Dirichlet draw, ``dimension`` categories):
 
-        Σ_r [ log Γ(Cβ) − log Γ(N_r + Cβ) + Σ_c (log Γ(n_rc + β) − log Γ(β)) ].
+        Σ_r [ log Γ(B) − log Γ(N_r + B) + Σ_c (log Γ(n_rc + β_c) − log Γ(β_c)) ],  B = Σ_c β_c.
 
-    ``totals[r]`` is N_r, the row's sum over all C categories; ``counts`` may hold
-    only some of the columns: a column left out adds nothing when it is zero, and
+    ``concentration`` is either the symmetric β (B = ``dimension`` · β) or one β_c per
+    column of ``counts``, with B = ``prior_total`` (the sum over all ``dimension``
+    categories). ``totals[r]`` is N_r, the row's sum over all categories; ``counts`` may
+    hold only some of the columns: a column left out adds nothing when it is zero, and
     cancels in a difference of two calls over the same columns when it is not.
     """
-    beta_total = dimension * concentration
+    if np.ndim(concentration) == 0:
+        beta_total = dimension * float(concentration)
+    elif prior_total is None:
+        raise ValueError("prior_total is needed with one concentration per column")
+    else:
+        beta_total = prior_total
     return float(
         counts.shape[0] * gammaln(beta_total)
         - gammaln(totals + beta_total).sum()

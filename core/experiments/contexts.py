@@ -32,7 +32,7 @@ import numpy as np
 from core.context import IncrementalLDA
 from core.world import WorldConfig, generate_scenes
 
-RULES = ("likelihood", "paper")
+RULES = ("scenes", "likelihood", "paper")
 SCENE_COUNTS = (1, 2, 3, 5, 10, 20, 50, 100)
 QUICK_SCENE_COUNTS = (3, 20)
 GENERIC_CONTEXTS = (2, 4, 5)

@@ -330,7 +330,7 @@ def _paper_world_counts(summary: Summary) -> list[int]:
 
 def judge_fig_11_stop(summary: Summary) -> Verdict:
     counts = _paper_world_counts(summary)
-    hits = {n: _hits(summary, f"paper@{n}", "likelihood") for n in counts}
+    hits = {n: _hits(summary, f"paper@{n}", "scenes") for n in counts}
     missed = {n: h for n, h in hits.items() if h[0] < STOP_SHARE * h[1]}
     paper_rule = ", ".join(f"|D| = {n}: {_share(*_hits(summary, f'paper@{n}', 'paper'))}" for n in counts)
     facts = "stops at the contexts present in " + ", ".join(f"{_share(*h)} (|D| = {n})" for n, h in hits.items())
@@ -370,14 +370,24 @@ def judge_fig_11_curves(summary: Summary) -> Verdict:
 
 def fig_11_stops(summary: Summary) -> Table:
     """Per world and |D|: test sets stopping at the contexts present, by each K rule."""
-    rows = [["world @ scenes", "contexts present", "K found (default)", "right (default)", "right (paper rule)"]]
+    rules = ("scenes", "likelihood", "paper")
+    rows = [
+        [
+            "world @ scenes",
+            "contexts present",
+            "K found (default)",
+            "right (default: scene evidence)",
+            "right (token birth move)",
+            "right (paper rule)",
+        ]
+    ]
     for key, stops in summary["stop_k"].items():
         rows.append(
             [
                 key,
                 " ".join(map(str, stops["present"])),
-                " ".join(map(str, stops["likelihood"])),
-                *(_share(*_hits(summary, key, rule)) for rule in ("likelihood", "paper")),
+                " ".join(map(str, stops["scenes"])),
+                *(_share(*_hits(summary, key, rule)) for rule in rules),
             ]
         )
     return rows

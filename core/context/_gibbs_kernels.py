@@ -428,12 +428,9 @@ def scene_to_one_context(
         best = max(best, log_weights[k])
     total = 0.0
     for k in range(n_contexts):
-        log_weights[k] = math.exp(log_weights[k] - best)
-        total += log_weights[k]
-    target, cumulative = 0, log_weights[0]
-    while target < n_contexts - 1 and cumulative <= u * total:
-        target += 1
-        cumulative += log_weights[target]
+        total += math.exp(log_weights[k] - best)
+        log_weights[k] = total  # now cumulative
+    target = _draw(log_weights, n_contexts, u)
     _count_block(block, n_block, d, target, 1, words, n_wk, n_k, n_dk)
     for i in range(start, stop):
         z[i] = target

@@ -21,6 +21,8 @@ import math
 import numba
 import numpy as np
 
+from core.context._gibbs_kernels import _draw
+
 
 @numba.njit(cache=True, nogil=True)
 def partition_scans(
@@ -64,13 +66,9 @@ def partition_scans(
         if visit < greedy_from:
             total = 0.0
             for k in range(n_contexts):
-                log_weights[k] = math.exp(log_weights[k] - best_weight)
-                total += log_weights[k]
-            target = uniforms[visit] * total
-            chosen, cumulative = 0, log_weights[0]
-            while chosen < n_contexts - 1 and cumulative <= target:
-                chosen += 1
-                cumulative += log_weights[chosen]
+                total += math.exp(log_weights[k] - best_weight)
+                log_weights[k] = total  # now cumulative
+            chosen = _draw(log_weights, n_contexts, uniforms[visit])
         elif chosen != old:
             greedy_changes += 1
         labels[s] = chosen

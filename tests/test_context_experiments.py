@@ -36,6 +36,7 @@ def test_contexts_experiment_records_fig11_and_where_growth_stops(tmp_path: Path
     assert summary["stop_k"]["paper@3"]["scenes"] == summary["stop_k"]["paper@3"]["present"]
     assert summary["hit_rates"]["generic-2@30"]["scenes"] == "2/2"
     assert set(summary["hit_rates"]["paper@20"]) == {"scenes", "likelihood", "paper"}
+    assert summary["stop_k"]["paper-all@3"]["present"] == [3, 3]
 
 
 def test_convergence_experiment_traces_every_solver(tmp_path: Path) -> None:

@@ -141,6 +141,16 @@ def test_fig_11_growth_must_stop_at_the_contexts_present_in_nine_of_ten_test_set
     assert "|D| = 1" not in verdict.reason
 
 
+def test_fig_11_growth_must_also_stop_at_three_where_every_context_is_present() -> None:
+    summary = _contexts([3] * 10)
+    summary["stop_k"]["paper-all@20"] = {"present": [3] * 10, "scenes": [3] * 8 + [2, 2], "paper": [6] * 10}
+    verdict = report.judge_fig_11_stop(summary)
+    assert verdict.status is Status.NOT_REPRODUCED
+    assert "8/10 test sets at |D| = 20 (every context present)" in verdict.reason
+    summary["stop_k"]["paper-all@20"]["scenes"] = [3] * 9 + [2]
+    assert report.judge_fig_11_stop(summary).status is Status.REPRODUCED
+
+
 def test_fig_11_curves_need_no_uncertain_concept_and_least_entropy_at_three() -> None:
     assert report.judge_fig_11_curves(_contexts([3] * 10)).status is Status.REPRODUCED
     verdict = report.judge_fig_11_curves(_contexts([3] * 10, k_of_min_entropy=2, c_low_at_3=1.5))

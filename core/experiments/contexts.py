@@ -9,11 +9,15 @@ probability δ) followed by the model's Gibbs sweeps. After each K the run
 records |C_low| (concepts with max_χ P(c|χ) < τ) and H̃ (Eq. 8, ρ = 0.25).
 
 Then each test set is learned again with K left to the model, once per
-K-selection rule (``likelihood``, the default birth move; ``paper``, C_low ≠ ∅),
-and the K where growth stops is compared with the number of contexts actually
-present in its scenes (three scenes hold all three contexts only 22 % of the
-time). The same comparison runs on generic worlds of 2, 4 and 5 contexts
-(``WorldConfig.generic``) with ``--generic-scenes`` scenes each.
+K-selection rule (``scenes``, the default scene-partition evidence;
+``likelihood``, the token-level birth move; ``paper``, C_low ≠ ∅), and the K
+where growth stops is compared with the number of contexts actually present in
+its scenes (three scenes hold all three contexts only 22 % of the time). Test
+sets that hold every context (world ``paper-all``: one scene of each context,
+the others drawn as usual, shuffled) ask the paper's question literally, "does
+growth stop at K = 3 from 3 scenes", for |D| of 3 to 10. The same comparison
+runs on generic worlds of 2, 4 and 5 contexts (``WorldConfig.generic``) with
+``--generic-scenes`` scenes each.
 
 Outputs: fig11.csv (|D|, test set, K, |C_low|, H̃), stop_k.csv (world, |D|,
 test set, rule, contexts present, K found), fig11.png (panels a–d of Fig. 11).
@@ -36,6 +40,8 @@ RULES = ("scenes", "likelihood", "paper")
 SCENE_COUNTS = (1, 2, 3, 5, 10, 20, 50, 100)
 QUICK_SCENE_COUNTS = (3, 20)
 GENERIC_CONTEXTS = (2, 4, 5)
+#: Test sets holding every context are drawn up to this |D| (beyond it the uniform draw holds them all).
+EVERY_CONTEXT_MAX_SCENES = 10
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -50,6 +56,16 @@ def _tokens(config: WorldConfig, n_scenes: int, seed: int) -> tuple[list[list[st
     scenes = generate_scenes(config, n_scenes, seed)
     present = len({context for scene in scenes for context in scene.object_contexts})
     return [scene.tokens() for scene in scenes], present
+
+
+def _tokens_with_every_context(config: WorldConfig, n_scenes: int, seed: int) -> list[list[str]]:
+    """``n_scenes`` (≥ the number of contexts) scenes holding every context: one scene of each,
+    the others drawn as usual, in a seeded random order."""
+    names = [context.name for context in config.contexts]
+    scenes = [generate_scenes(config, 1, seed * 100 + i, contexts=[name])[0] for i, name in enumerate(names)]
+    scenes += generate_scenes(config, n_scenes - len(names), seed)
+    order = np.random.default_rng(seed).permutation(len(scenes))
+    return [scenes[i].tokens() for i in order]
 
 
 def forced_growth(scenes: list[list[str]], max_k: int, seed: int, tau: float | None) -> list[tuple[int, float]]:
@@ -98,6 +114,21 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                         "rule": rule,
                         "present": present,
                         "found": found,
+                    }
+                )
+    for n_scenes in (n for n in counts if len(paper.contexts) <= n <= EVERY_CONTEXT_MAX_SCENES):
+        for test_set in range(test_sets):
+            seed = args.seed * 1000 + test_set
+            scenes = _tokens_with_every_context(paper, n_scenes, seed)
+            for rule in RULES:
+                stops.append(
+                    {
+                        "world": "paper-all",
+                        "scenes": n_scenes,
+                        "test_set": test_set,
+                        "rule": rule,
+                        "present": len(paper.contexts),
+                        "found": stopping_k(scenes, seed, rule, args.tau),
                     }
                 )
     for n_contexts in generic_contexts:

@@ -331,12 +331,18 @@ def _paper_world_counts(summary: Summary) -> list[int]:
 def judge_fig_11_stop(summary: Summary) -> Verdict:
     counts = _paper_world_counts(summary)
     hits = {n: _hits(summary, f"paper@{n}", "scenes") for n in counts}
-    missed = {n: h for n, h in hits.items() if h[0] < STOP_SHARE * h[1]}
+    every = {n: _hits(summary, f"paper-all@{n}", "scenes") for n in counts if f"paper-all@{n}" in summary["stop_k"]}
+    missed = {f"|D| = {n}": h for n, h in hits.items() if h[0] < STOP_SHARE * h[1]}
+    missed |= {f"|D| = {n} (every context present)": h for n, h in every.items() if h[0] < STOP_SHARE * h[1]}
     paper_rule = ", ".join(f"|D| = {n}: {_share(*_hits(summary, f'paper@{n}', 'paper'))}" for n in counts)
     facts = "stops at the contexts present in " + ", ".join(f"{_share(*h)} (|D| = {n})" for n, h in hits.items())
+    if every:
+        facts += "; at K = 3 where every context is present in " + ", ".join(
+            f"{_share(*h)} (|D| = {n})" for n, h in every.items()
+        )
     why = (
         "stops at the contexts present in only "
-        + ", ".join(f"{_share(*h)} test sets at |D| = {n}" for n, h in missed.items())
+        + ", ".join(f"{_share(*h)} test sets at {where}" for where, h in missed.items())
         + f"; the paper's rule (grow while C_low ≠ ∅): {paper_rule}"
     )
     return _verdict(bool(counts) and not missed, facts, why)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from core.concept_web import ConceptWeb
-from core.context import IncrementalLDA
+from core.context import IncrementalLDA, feedback
 from core.context.feedback import context_concepts, contextual_feedback
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary
@@ -226,3 +226,44 @@ def test_webs_settled_beforehand_give_the_identical_result(world, web, context_m
         assert fresh.active_concepts == reused.active_concepts and fresh.iterations == reused.iterations
     with pytest.raises(InvalidInputError, match="perceived"):
         contextual_feedback(web, context_model, perceptions, world.vocabulary, applied=applied, perceived=[])
+
+
+def _cold_damped_settle(web, evidence, applied, previous):
+    """The loop's settling before warm starts and undamped passes: cold, ConceptWeb's default damping."""
+    return web.infer_many(evidence, applied=applied)
+
+
+#: How far a settling at the default tolerance (1e-6 on messages) may be from its LBP fixed point's
+#: marginals: the old settling (cold, damped) was up to 5e-5 away on these scenes, the new one as well.
+FIXED_POINT_TOLERANCE = 1e-4
+
+
+@pytest.mark.parametrize("undamped_iterations", [feedback.UNDAMPED_ITERATIONS, 1])
+def test_warm_undamped_settling_reaches_the_fixed_point_of_the_cold_damped_one(
+    world, web, context_model, monkeypatch, undamped_iterations: int
+) -> None:
+    # One undamped iteration never settles: every object then takes the damped fallback.
+    monkeypatch.setattr(feedback, "UNDAMPED_ITERATIONS", undamped_iterations)
+    rng = np.random.default_rng(5)
+    scenes = [boxlike_cup_scene(world)]
+    for _ in range(20):
+        objects = rng.choice(len(world.test_objects), 4, replace=False)
+        clear = np.array([perception_of(world.vocabulary, world.test_objects[i]) for i in objects])
+        noisy = 0.7 * clear + 0.3 * random_perceptions(world.vocabulary, 4, rng)
+        scenes.append((noisy, rng.random((4, len(world.vocabulary.verbs))) < 0.6))
+    for perceptions, applied in scenes:
+        new = contextual_feedback(web, context_model, perceptions, world.vocabulary, applied=applied)
+        with monkeypatch.context() as patch:
+            patch.setattr(feedback, "_settle", _cold_damped_settle)
+            old = contextual_feedback(web, context_model, perceptions, world.vocabulary, applied=applied)
+        assert new.active_concepts == old.active_concepts and new.iterations == old.iterations
+        assert np.array_equal(new.context_posterior, old.context_posterior)
+        assert np.array_equal(new.in_context, old.in_context)
+        # Both settle the final in-context evidence to its sum-product fixed point, within the same tolerance.
+        fixed_point = web.infer_many(new.in_context, applied=applied, tolerance=1e-13, max_iterations=5000)
+        for result in (new, old):
+            np.testing.assert_allclose(
+                result.in_context_web,
+                [inference.probabilities for inference in fixed_point],
+                atol=FIXED_POINT_TOLERANCE,
+            )

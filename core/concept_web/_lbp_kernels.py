@@ -55,8 +55,12 @@ def propagate(
     tolerance: float,
     max_iterations: int,
     beliefs: np.ndarray,
+    messages: np.ndarray,
 ) -> tuple[int, bool]:
     """Run sum-product (or max-product) LBP for one object; fill ``beliefs`` (n_var, K).
+
+    ``messages`` (n_directed, K) holds the starting messages on entry (uniform for
+    a cold start; a previous run's for a warm start) and the final ones on return.
 
     A message update is ``m_new = (1 - damping) * m_computed + damping * m_old``;
     the run has converged when no message entry moved by ``tolerance`` or more in
@@ -72,10 +76,11 @@ def propagate(
     n_var = cardinalities.shape[0]
     width = unary.shape[1]
     n_directed = sources.shape[0]
-    messages = np.zeros((n_directed, width))
+    start_messages = messages
     for d in range(n_directed):
-        for b in range(cardinalities[targets[d]]):
-            messages[d, b] = 1.0 / cardinalities[targets[d]]
+        if not sends[sources[d]]:
+            for b in range(cardinalities[targets[d]]):
+                messages[d, b] = 1.0 / cardinalities[targets[d]]
     updated = messages.copy()
     product = np.zeros((n_var, width))
     cavity = np.zeros(width)
@@ -130,6 +135,8 @@ def propagate(
                 updated[d, b] = fresh
         messages, updated = updated, messages
         converged = delta < tolerance
+    if iterations % 2 == 1:
+        start_messages[:] = messages
     _products(unary, cardinalities, incoming_start, incoming, messages, product)
     for v in range(n_var):
         total = 0.0
@@ -141,27 +148,45 @@ def propagate(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def uniform_messages(cardinalities: np.ndarray, targets: np.ndarray, messages: np.ndarray) -> None:
+    """Set every message of ``messages`` (n_objects, n_directed, K) to the uniform vector (a cold start)."""
+    for i in range(messages.shape[0]):
+        for d in range(targets.shape[0]):
+            n_target = cardinalities[targets[d]]
+            for b in range(n_target):
+                messages[i, d, b] = 1.0 / n_target
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def propagate_many(
     unary: np.ndarray,
     sends: np.ndarray,
     graph: tuple,
-    damping: float,
+    damping: np.ndarray,
     tolerance: float,
-    max_iterations: int,
+    max_iterations: np.ndarray,
     marginals: np.ndarray,
     max_marginals: np.ndarray,
     iterations: np.ndarray,
     converged: np.ndarray,
+    sum_messages: np.ndarray,
+    max_messages: np.ndarray,
 ) -> None:
     """Sum-product and max-product LBP for every object of ``unary`` (n_objects, n_var, K)
     and ``sends`` (n_objects, n_var).
 
-    ``iterations`` and ``converged`` (n_objects, 2) hold the sum-product pass in
-    column 0 and the max-product pass in column 1.
+    ``damping`` and ``max_iterations`` (2,), and ``iterations`` and ``converged``
+    (n_objects, 2), hold the sum-product pass in column 0 and the max-product
+    pass in column 1. ``sum_messages`` and ``max_messages`` (n_objects, n_directed, K)
+    are each pass's starting messages on entry (uniform for a cold start, see
+    :func:`uniform_messages`) and its final messages on return.
     """
     for i in range(unary.shape[0]):
         for column in range(2):
             out = marginals[i] if column == 0 else max_marginals[i]
-            steps, done = propagate(unary[i], sends[i], graph, column == 1, damping, tolerance, max_iterations, out)
+            start = sum_messages[i] if column == 0 else max_messages[i]
+            steps, done = propagate(
+                unary[i], sends[i], graph, column == 1, damping[column], tolerance, max_iterations[column], out, start
+            )
             iterations[i, column] = steps
             converged[i, column] = done

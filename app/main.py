@@ -22,7 +22,7 @@ from prometheus_client import CollectorRegistry
 from prometheus_fastapi_instrumentator import Instrumentator
 
 from app.errors import InvalidInput, add_exception_handlers, error_responses
-from app.middleware import BodySizeLimit
+from app.middleware import BodySizeLimit, memoise_route_metrics
 from app.registry import ModelRegistry
 from app.routers import contexts, health, models, plans, scenes, stream, training
 from app.settings import Settings
@@ -78,6 +78,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     Instrumentator(registry=CollectorRegistry(), excluded_handlers=["/metrics"]).instrument(app).expose(
         app, endpoint="/metrics", tags=["health"], summary="Prometheus metrics"
     )
+    memoise_route_metrics(app)
     # Last: the dashboard at / must not shadow any API route.
     app.mount("/", StaticFiles(directory=DASHBOARD_DIRECTORY, html=True), name="dashboard")
     return app

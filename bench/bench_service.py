@@ -23,7 +23,9 @@ there, every 200 keeps them at 0.5 %, under the p99.
 
 References measured in the same run (the machine is shared; ratios travel):
 ``fsync_ms``, one 4 KiB write + fsync in the database's folder (the floor of a
-durable SQLite commit), and ``pipeline_ms``, the same scenes through the same
+durable SQLite commit), ``postgres_commit_ms``, one durable one-row INSERT + COMMIT
+on the PostgreSQL server (the floor of a durable PostgreSQL scene: its WAL flush),
+and ``pipeline_ms``, the same scenes through the same
 perception, concept web, Eq. 6 feedback and Incremental-LDA update in this
 process, without HTTP or database. Writes ``bench/results/service.json``.
 """
@@ -131,6 +133,27 @@ def fsync_ms(folder: Path, repeats: int = 50) -> float:
     finally:
         os.close(descriptor)
         path.unlink()
+    return 1000 * statistics.median(times)
+
+
+def postgres_commit_ms(database_url: str, repeats: int = 50) -> float:
+    """Median time of one durable one-row INSERT + COMMIT on the PostgreSQL server (its commit floor:
+    a WAL flush with ``synchronous_commit=on``)."""
+    engine = create_engine(database_url)
+    try:
+        with engine.connect() as connection:
+            connection.execute(text("CREATE TABLE commit_probe (value integer)"))
+            connection.commit()
+            times = []
+            for value in range(repeats):
+                start = time.perf_counter()
+                connection.execute(text("INSERT INTO commit_probe VALUES (:value)"), {"value": value})
+                connection.commit()
+                times.append(time.perf_counter() - start)
+            connection.execute(text("DROP TABLE commit_probe"))
+            connection.commit()
+    finally:
+        engine.dispose()
     return 1000 * statistics.median(times)
 
 
@@ -296,10 +319,15 @@ def _fresh_postgres() -> str | None:
 
 def _report(name: str, result: dict[str, Any], references: dict[str, float]) -> None:
     concepts, features = result["concepts"], result["features"]
+    floor, floor_name = (
+        (references["postgres_commit_ms"], "one PostgreSQL commit")
+        if name == "postgresql"
+        else (references["fsync_ms"], "one fsync")
+    )
     print(
         f"{name:10s} concepts: median {concepts['median_ms']:.2f} ms, p99 {concepts['p99_ms']:.2f} ms "
         f"({concepts['median_ms'] / references['pipeline_ms']:.1f}x the in-process pipeline, "
-        f"{concepts['median_ms'] / references['fsync_ms']:.1f}x one fsync); "
+        f"{concepts['median_ms'] / floor:.1f}x {floor_name}); "
         f"features: median {features['median_ms']:.2f} ms; default hyperparameters p99 "
         f"{result['default_hyperparameters']['p99_ms']:.1f} ms"
     )
@@ -347,6 +375,8 @@ def main() -> dict:
             url = f"sqlite:///{Path(folder) / 'bench.sqlite3'}" if backend == "sqlite" else _fresh_postgres()
             if url is None:
                 continue
+            if backend == "postgresql":
+                references["postgres_commit_ms"] = round(postgres_commit_ms(url), 3)
             results[backend] = run_backend(url, Path(folder) / f"{backend}.log", data, sizes)
             _report(backend, results[backend], references)
     results["load_average_after"] = os.getloadavg()

@@ -4,11 +4,17 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
+from app.schemas.scenes import SceneCreate, SceneRead
+from app.services.perception import SETTLED_WEBS_CACHED, Perception, SettledWebs, analyse_objects
+from core.concept_web import ConceptWeb
+from core.world import World
 from storage.database import create_session_makers
 from storage.repositories import incremental_lda as lda_repository
+from tests.conftest import concept_scenes, synthetic_training_objects
 
 KITCHEN = {"objects": [{"concepts": ["cup", "hard", "short"]}, {"concepts": ["plate", "round"]}]}
 PLAYROOM = {"objects": [{"concepts": ["ball", "soft", "noisy"]}, {"concepts": {"box": 0.9, "edgy": 0.8}}]}
@@ -94,3 +100,41 @@ def test_stored_counts_match_the_stored_assignments_and_memory(
     contexts = client.get(f"/v1/models/{model_id}/contexts", params={"top": 40}).json()
     spoon = [c for context in contexts["contexts"] for c in context["top_concepts"] if c["name"] == "spoon"]
     assert spoon and all(c["kind"] == "noun" for c in spoon)
+
+
+def test_a_fitted_models_answers_are_stored_exactly_as_their_schema_gives_them(
+    client: TestClient, model_id: str
+) -> None:
+    # The answer is built without validation (app/services/scenes.py): validating it must give it back unchanged.
+    client.post(
+        f"/v1/models/{model_id}/training-objects", json={"objects": synthetic_training_objects(World.paper(0), seed=1)}
+    ).raise_for_status()
+    client.post(f"/v1/models/{model_id}/fit", json={"method": "kmeans"}).raise_for_status()
+    unseen = {"objects": [{"concepts": {"cup": 0.7, "zebra": 0.9}, "kinds": {"zebra": "noun"}}]}
+    features = {"objects": [{"features": synthetic_training_objects(World.paper(0), seed=2)[0]["features"]}]}
+    for body in [*concept_scenes(6, seed=4), unseen, features]:
+        response = client.post(f"/v1/models/{model_id}/scenes", json=body)
+        assert response.status_code == 201
+        assert SceneRead.model_validate_json(response.text).model_dump_json() == response.text
+
+
+def test_memoised_concept_webs_are_the_webs_a_cold_run_settles() -> None:
+    world = World.paper(0)
+    web = ConceptWeb.fit(world.vocabulary, [[*obj.concepts, *obj.behaviours] for obj in world.train_objects])
+    scenes = [SceneCreate.model_validate(body).objects for body in concept_scenes(30, seed=5)]
+    warm = Perception(world.vocabulary, concept_web=web)
+    for objects in scenes:  # fills the memo
+        analyse_objects(warm, objects, "m")
+    assert 0 < len(warm.settled_webs._entries) <= SETTLED_WEBS_CACHED
+    for objects in scenes:
+        memoised = analyse_objects(warm, objects, "m")
+        cold = analyse_objects(Perception(world.vocabulary, concept_web=web), objects, "m")
+        assert memoised.objects == cold.objects and np.array_equal(memoised.perceptions, cold.perceptions)
+        for a, b in zip(memoised.settled, cold.settled, strict=True):
+            assert np.array_equal(a.probabilities, b.probabilities)
+            assert np.array_equal(a.map_configuration, b.map_configuration)
+            assert (a.iterations, a.converged) == (b.iterations, b.converged)
+    small = SettledWebs(capacity=2)
+    for key in (b"a", b"b", b"a", b"c"):
+        small.put(key, memoised.settled[0])
+    assert small.get(b"b") is None and small.get(b"a") is not None and small.get(b"c") is not None

@@ -28,6 +28,8 @@ The pipeline of Fig. 6(b):
 from __future__ import annotations
 
 import functools
+import threading
+from collections import OrderedDict
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TypeVar
@@ -51,13 +53,55 @@ ACTIVE_PROBABILITY = 0.5
 PayloadT = TypeVar("PayloadT")
 
 
+class SettledWebs:
+    """The concept webs of concept-level objects, by their evidence: a bounded LRU memo.
+
+    Settling a web is a pure function of its evidence (the perception and which
+    verbs were applied: loopy BP from uniform messages is deterministic), and the
+    evidence of an object named at the concept level is a function of its names,
+    which a robot's scenes repeat: a hit returns the very inference a cold run
+    would. Feature- and raw-level perceptions are continuous and not memoised.
+    Entries keep their sum-product messages (Eq. 6's first pass starts from them),
+    ≈ 16 KB each on the paper's web, so ``SETTLED_WEBS_CACHED`` bounds the memory
+    per model (≈ 8 MB).
+    Thread-safe: ``/infer`` analyses without the model's lock.
+    """
+
+    def __init__(self, capacity: int) -> None:
+        self._capacity = capacity
+        self._entries: OrderedDict[bytes, WebInference] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, key: bytes) -> WebInference | None:
+        with self._lock:
+            found = self._entries.get(key)
+            if found is not None:
+                self._entries.move_to_end(key)
+            return found
+
+    def put(self, key: bytes, inference: WebInference) -> None:
+        with self._lock:
+            self._entries[key] = inference
+            self._entries.move_to_end(key)
+            while len(self._entries) > self._capacity:
+                self._entries.popitem(last=False)
+
+
+#: Distinct concept-level objects whose settled webs a model keeps (see :class:`SettledWebs`).
+SETTLED_WEBS_CACHED = 512
+
+
 @dataclass(frozen=True)
 class Perception:
-    """What a model has fitted to perceive objects; replaced whole by a fit, never mutated."""
+    """What a model has fitted to perceive objects; replaced whole by a fit, never mutated
+    (but for its memo of settled concept-level webs, which belongs to its ``concept_web``)."""
 
     vocabulary: Vocabulary
     prototypes: PrototypeSet | None = None
     concept_web: ConceptWeb | None = None
+    settled_webs: SettledWebs = field(
+        default_factory=lambda: SettledWebs(SETTLED_WEBS_CACHED), compare=False, repr=False
+    )
 
 
 @dataclass(frozen=True)
@@ -108,7 +152,7 @@ def analyse_objects(perception: Perception, objects: Sequence[SceneObject], mode
     applied = np.stack([item.applied for item in evidence])
     web = perception.concept_web
     settled: Sequence[WebInference | None] = (
-        web.infer_many(perceptions, applied=applied) if web is not None else [None] * len(evidence)
+        _settle(perception, web, evidence, perceptions, applied) if web is not None else [None] * len(evidence)
     )
     concepts = perception.vocabulary.concepts
     results = []
@@ -129,6 +173,38 @@ def analyse_objects(perception: Perception, objects: Sequence[SceneObject], mode
         )
     webs = None if web is None else tuple(item for item in settled if item is not None)
     return SceneAnalysis(results, perceptions, applied, webs, web)
+
+
+def _settle(
+    perception: Perception, web: ConceptWeb, evidence: Sequence[_Evidence], perceptions: np.ndarray, applied: np.ndarray
+) -> list[WebInference]:
+    """Every object's web settled on its perception: memoised ones for concept-level objects,
+    the others in one ``infer_many`` call."""
+    keys = [
+        item.probabilities.tobytes() + item.applied.tobytes() if item.level == "concepts" else None for item in evidence
+    ]
+    found = [None if key is None else perception.settled_webs.get(key) for key in keys]
+    missing = [i for i, inference in enumerate(found) if inference is None]
+    if missing:
+        fresh = web.infer_many(perceptions[missing], applied=applied[missing])
+        for i, inference in zip(missing, fresh, strict=True):
+            found[i] = inference
+            key = keys[i]
+            if key is not None:
+                perception.settled_webs.put(key, _frozen(inference))
+    return found  # type: ignore[return-value]
+
+
+def _frozen(inference: WebInference) -> WebInference:
+    """A read-only copy that holds only its own object's arrays (not the whole batch's)."""
+    arrays = [inference.probabilities, inference.map_configuration]
+    if inference.messages is not None:
+        arrays.append(inference.messages)
+    copies = [array.copy() for array in arrays]
+    for array in copies:
+        array.flags.writeable = False
+    messages = copies[2] if inference.messages is not None else None
+    return WebInference(copies[0], copies[1], inference.iterations, inference.converged, messages)
 
 
 def in_context(

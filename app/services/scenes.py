@@ -28,6 +28,7 @@ from app.schemas.stream import ContextDiscoveredEvent, SceneEvent
 from app.services.perception import ObjectResult, SceneAnalysis, analyse_objects, in_context
 from app.stream import StreamHub
 from core.context.incremental import SceneUpdate
+from storage.database import pipelined
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import scenes as scene_repository
 from storage.repositories.incremental_lda import SceneChanges
@@ -122,16 +123,27 @@ def _object_analysis(result: ObjectResult) -> ObjectAnalysis:
 
 
 def _answer(model: ModelRuntime, update: SceneUpdate, analysis: SceneAnalysis, created_at: datetime) -> SceneRead:
+    """The scene's answer, built without validation: every value is already of its field's
+    type (Python ints, floats and strs; validating ~450 numbers cost ≈ 0.1 ms a scene)."""
     posterior = update.context_posterior
-    return SceneRead(
+    return SceneRead.model_construct(
         model_id=model.id,
-        scene_id=update.scene_index,
+        scene_id=int(update.scene_index),
         learned=True,
-        context_count=update.contexts_after,
-        previous_context_count=update.contexts_before,
+        context_count=int(update.contexts_after),
+        previous_context_count=int(update.contexts_before),
         context_posterior=posterior.tolist(),
         map_context=int(np.argmax(posterior)),
-        objects=[_object_analysis(result) for result in analysis.objects],
+        objects=[
+            ObjectAnalysis.model_construct(
+                level=result.level,
+                active_concepts=result.active_concepts,
+                perception=result.perception,
+                web=result.web,
+                in_context=result.in_context,
+            )
+            for result in analysis.objects
+        ],
         created_at=created_at,
     )
 
@@ -147,6 +159,21 @@ def _save(
     request_hash: str,
 ) -> None:
     first_word = len(model.word_kinds) - len(update.vocabulary_additions)
+    with pipelined(session):  # PostgreSQL: the scene's statements in one round trip
+        _save_rows(session, model, update, first_token, first_word, answer, answer_json, idempotency_key, request_hash)
+
+
+def _save_rows(
+    session: Session,
+    model: ModelRuntime,
+    update: SceneUpdate,
+    first_token: int,
+    first_word: int,
+    answer: SceneRead,
+    answer_json: str,
+    idempotency_key: str | None,
+    request_hash: str,
+) -> None:
     lda_repository.save_scene(
         session,
         model.id,

@@ -3,21 +3,53 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from datetime import datetime
 from typing import Any
 
-from sqlalchemy import Row, func, insert, select
+from sqlalchemy import Row, func, select
 from sqlalchemy.orm import Session
 
-from storage.models import Scene
+from storage.database import DriverStatements
+from storage.models import Scene, utc_now
 
 
-def add_scene(session: Session, model_id: str, scene_id: int, **values: Any) -> None:
-    """Insert one scene row: idempotency_key, request_hash, context_count, map_context, context_posterior, answer."""
-    session.connection().execute(_INSERT_SCENE, {"model_id": model_id, "id": scene_id, **values})
+def add_scene(
+    session: Session,
+    model_id: str,
+    scene_id: int,
+    *,
+    idempotency_key: str | None,
+    request_hash: str,
+    context_count: int,
+    map_context: int,
+    context_posterior: list[float],
+    answer: str,
+    created_at: datetime | None = None,
+) -> None:
+    """Insert one scene row (straight through the driver, like the scene's other rows:
+    ``storage.repositories.incremental_lda``); ``created_at`` defaults to now."""
+    driver = DriverStatements(session)
+    driver.execute(
+        _INSERT_SCENE,
+        (
+            model_id,
+            scene_id,
+            idempotency_key,
+            request_hash,
+            context_count,
+            map_context,
+            driver.bind(_SCENE.c.context_posterior)(context_posterior),
+            answer,
+            driver.bind(_SCENE.c.created_at)(created_at or utc_now()),
+        ),
+    )
 
 
-#: Built once: SQLAlchemy reuses its compiled form (and still converts the JSON and time columns).
-_INSERT_SCENE = insert(Scene.__table__)
+_SCENE = Scene.__table__
+_INSERT_SCENE = (
+    "INSERT INTO scene (model_id, id, idempotency_key, request_hash, context_count, map_context, "
+    "context_posterior, answer, created_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)"
+)
 
 
 def get_scene(session: Session, model_id: str, scene_id: int) -> Scene | None:

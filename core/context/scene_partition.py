@@ -97,14 +97,12 @@ def partition_evidence(
 ) -> float:
     """S(K) of the module docstring for ``labels`` (one context per scene of ``blocks``)."""
     vocab_size = prior.shape[0]
-    counts = np.zeros((n_contexts, vocab_size))
-    base = np.zeros((n_contexts, vocab_size))
-    base[: blocks.base_counts.shape[0]] = blocks.base_counts
-    scene_of_entry = np.repeat(np.arange(blocks.n_scenes), np.diff(blocks.offsets))
-    np.add.at(counts, (labels[scene_of_entry], blocks.words), blocks.counts)
+    base = _context_counts(blocks, None, n_contexts, vocab_size)
+    with_scenes = _context_counts(blocks, labels, n_contexts, vocab_size)
+    counts = with_scenes - base
     prior_total = float(prior.sum())
     concepts = dirichlet_multinomial_log_likelihood(
-        base + counts, (base + counts).sum(axis=1), prior, vocab_size, prior_total
+        with_scenes, with_scenes.sum(axis=1), prior, vocab_size, prior_total
     ) - dirichlet_multinomial_log_likelihood(base, base.sum(axis=1), prior, vocab_size, prior_total)
     totals = blocks.totals
     scenes = (
@@ -147,11 +145,7 @@ def _search(
     blocks: SceneBlocks, labels: np.ndarray, n_contexts: int, prior: np.ndarray, rng: np.random.Generator, sampled: int
 ) -> np.ndarray:
     """``sampled`` sampled scans, then greedy scans until none moves a scene (at most :data:`GREEDY_SCANS`)."""
-    vocab_size = prior.shape[0]
-    counts = np.zeros((n_contexts, vocab_size))
-    counts[: blocks.base_counts.shape[0]] = blocks.base_counts
-    scene_of_entry = np.repeat(np.arange(blocks.n_scenes), np.diff(blocks.offsets))
-    np.add.at(counts, (labels[scene_of_entry], blocks.words), blocks.counts)
+    counts = _context_counts(blocks, labels, n_contexts, prior.shape[0])
     totals = counts.sum(axis=1)
     prior_total = float(prior.sum())
     order = np.concatenate([rng.permutation(blocks.n_scenes) for _ in range(sampled)])
@@ -162,3 +156,14 @@ def _search(
         if kernels.partition_scans(*arguments, order, np.zeros(0), 0) == 0:
             break
     return labels
+
+
+def _context_counts(blocks: SceneBlocks, labels: np.ndarray | None, n_contexts: int, vocab_size: int) -> np.ndarray:
+    """K × |W| concept counts: what each context holds before the window, plus (with ``labels``)
+    the scenes each label sends it."""
+    counts = np.zeros((n_contexts, vocab_size))
+    counts[: blocks.base_counts.shape[0]] = blocks.base_counts
+    if labels is not None:
+        scene_of_entry = np.repeat(np.arange(blocks.n_scenes), np.diff(blocks.offsets))
+        np.add.at(counts, (labels[scene_of_entry], blocks.words), blocks.counts)
+    return counts

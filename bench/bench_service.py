@@ -8,8 +8,14 @@ simulated recordings, clouds decimated to 1,000 points to keep the set-up short)
 - ``concepts``: one client posting 5-object scenes at the concept level
   (each object's noun, adjectives and applicable verbs), every scene a durable
   commit (SQLite ``synchronous=FULL``; PostgreSQL's default ``synchronous_commit=on``),
-  10,000 timed scenes after a warm-up of ``birth_check_interval`` scenes;
-- ``features``: the same with 5 test objects at the feature level (Table III vectors);
+  10,000 timed scenes after a warm-up of ``birth_check_interval`` scenes. The
+  client is a plain keep-alive HTTP/1.1 connection (the standard library's
+  ``http.client``; the timing includes encoding the body as JSON and reading the
+  answer), as lean as a robot's own HTTP stack; ``concepts_httpx`` and
+  ``concepts_bridge`` post the next scenes through an ``httpx.Client`` and
+  through the robot-side ``bridge.Client`` (idempotency key, retries, the answer
+  parsed into pydantic models), whose own costs show beside the server's;
+- ``features``: 5 test objects at the feature level (Table III vectors), lean client;
 - ``throughput``: 8 concurrent clients, on one model (serialised by its lock)
   and on 8 models (one each, warmed up like the first);
 - ``default_hyperparameters``: the concepts series on a model with the core's
@@ -34,6 +40,7 @@ process, without HTTP or database. Writes ``bench/results/service.json``.
 from __future__ import annotations
 
 import argparse
+import http.client
 import json
 import os
 import socket
@@ -53,6 +60,8 @@ from sqlalchemy import create_engine, text
 from app.schemas.scenes import SceneCreate
 from app.services.perception import Perception, analyse_objects, in_context
 from bench import RESULTS
+from bridge import Client as BridgeClient
+from bridge.models import SceneCreate as BridgeScene
 from core.concept_web import ConceptWeb
 from core.context.feedback import PAPER_SIGMA
 from core.context.incremental import IncrementalLDA
@@ -230,6 +239,41 @@ def _summary(latencies: list[float]) -> dict[str, float]:
     }
 
 
+class LeanClient:
+    """One keep-alive HTTP/1.1 connection (``http.client``): what the server's answer costs a lean client."""
+
+    def __init__(self, port: int) -> None:
+        self._connection = http.client.HTTPConnection("127.0.0.1", port, timeout=60)
+
+    def post_all(self, model_id: str, scenes: list[dict]) -> list[float]:
+        path, headers = f"/v1/models/{model_id}/scenes", {"Content-Type": "application/json"}
+        latencies = []
+        for body in scenes:
+            start = time.perf_counter()
+            self._connection.request("POST", path, body=json.dumps(body).encode(), headers=headers)
+            response = self._connection.getresponse()
+            answer = response.read()
+            latencies.append(time.perf_counter() - start)
+            if response.status != 201:
+                raise RuntimeError(f"scene refused: {response.status} {answer[:300]!r}")
+        return latencies
+
+    def close(self) -> None:
+        self._connection.close()
+
+
+def _post_with_bridge(url: str, model_id: str, scenes: list[dict]) -> list[float]:
+    """The scenes through ``bridge.Client`` (a fresh idempotency key each, the answer parsed)."""
+    bodies = [BridgeScene.model_validate(body) for body in scenes]
+    latencies = []
+    with BridgeClient(url) as client:
+        for body in bodies:
+            start = time.perf_counter()
+            client.scenes.create(model_id, body)
+            latencies.append(time.perf_counter() - start)
+    return latencies
+
+
 def _post_all(client: httpx.Client, model_id: str, scenes: list[dict]) -> list[float]:
     latencies = []
     for body in scenes:
@@ -283,8 +327,15 @@ def run_backend(database_url: str, log: Path, data: dict[str, Any], sizes: dict[
         with httpx.Client(base_url=server.url, timeout=60) as client:
             model_id = _trained_model(client, data["train"], SERVING)
             _post_all(client, model_id, data["warmup"])
-            concepts = _summary(_post_all(client, model_id, data["concepts"][: sizes["concepts"]]))
-            features = _summary(_post_all(client, model_id, data["features"][: sizes["features"]]))
+            lean = LeanClient(server.port)
+            try:
+                concepts = _summary(lean.post_all(model_id, data["concepts"][: sizes["concepts"]]))
+                features = _summary(lean.post_all(model_id, data["features"][: sizes["features"]]))
+            finally:
+                lean.close()
+            other = data["concepts"][sizes["concepts"] :][: sizes["clients"]]
+            concepts_httpx = _summary(_post_all(client, model_id, other))
+            concepts_bridge = _summary(_post_with_bridge(server.url, model_id, other))
             default = _trained_model(client, data["train"], {})
             default_hyperparameters = _summary(_post_all(client, default, data["concepts"][: sizes["default"]]))
             separate = [_trained_model(client, data["train"], SERVING) for _ in range(CLIENTS)]
@@ -297,6 +348,8 @@ def run_backend(database_url: str, log: Path, data: dict[str, Any], sizes: dict[
         server.stop()
     return {
         "concepts": concepts,
+        "concepts_httpx": concepts_httpx,
+        "concepts_bridge": concepts_bridge,
         "features": features,
         "default_hyperparameters": default_hyperparameters,
         "throughput": throughput,
@@ -329,6 +382,8 @@ def _report(name: str, result: dict[str, Any], references: dict[str, float]) -> 
         f"{name:10s} concepts: median {concepts['median_ms']:.2f} ms, p99 {concepts['p99_ms']:.2f} ms "
         f"({concepts['median_ms'] / references['pipeline_ms']:.1f}x the in-process pipeline, "
         f"{concepts['median_ms'] / floor:.1f}x {floor_name}); "
+        f"through httpx {result['concepts_httpx']['median_ms']:.2f} ms, through bridge.Client "
+        f"{result['concepts_bridge']['median_ms']:.2f} ms; "
         f"features: median {features['median_ms']:.2f} ms; default hyperparameters p99 "
         f"{result['default_hyperparameters']['p99_ms']:.1f} ms"
     )
@@ -342,9 +397,9 @@ def main() -> dict:
     parser.add_argument("--backends", default="sqlite,postgresql", help="comma-separated: sqlite, postgresql")
     args = parser.parse_args(sys.argv[1:])
     sizes = (
-        {"concepts": 300, "features": 100, "default": 100, "throughput": 400}
+        {"concepts": 300, "clients": 100, "features": 100, "default": 100, "throughput": 400}
         if args.quick
-        else {"concepts": 10_000, "features": 1_000, "default": 1_000, "throughput": 4_000}
+        else {"concepts": 10_000, "clients": 2_000, "features": 1_000, "default": 1_000, "throughput": 4_000}
     )
     world = World.paper(0)
     started = time.perf_counter()
@@ -354,7 +409,7 @@ def main() -> dict:
     data = {
         "train": train,
         "warmup": concept_scenes(world, SERVING["birth_check_interval"], seed=1),
-        "concepts": concept_scenes(world, max(sizes["concepts"], sizes["throughput"]), seed=2),
+        "concepts": concept_scenes(world, max(sizes["concepts"] + sizes["clients"], sizes["throughput"]), seed=2),
         "features": feature_scenes(world, features, sizes["features"], seed=3),
     }
     results: dict[str, Any] = {

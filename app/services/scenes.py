@@ -208,6 +208,8 @@ def _save_rows(
 
 def _announce(model: ModelRuntime, hub: StreamHub, answer: SceneRead) -> None:
     model.publish_summary()
+    if not hub.subscriber_count(model.id):
+        return  # no dashboard is watching: the events would be built for nobody
     assert answer.scene_id is not None and answer.created_at is not None
     scene = SceneEvent(
         model_id=model.id,

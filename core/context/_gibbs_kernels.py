@@ -29,48 +29,6 @@ def _draw(cumulative: np.ndarray, n_contexts: int, u: float) -> int:
     return k
 
 
-@numba.njit(cache=True, nogil=True)
-def _resample(
-    i: int,
-    d: int,
-    words: np.ndarray,
-    z: np.ndarray,
-    n_wk: np.ndarray,
-    n_k: np.ndarray,
-    n_dk: np.ndarray,
-    n_contexts: int,
-    alpha: float,
-    xi: float,
-    v_xi: float,
-    inverse: np.ndarray,
-    cumulative: np.ndarray,
-    u: float,
-) -> None:
-    """One draw of Eq. 5 for token ``i`` of document ``d`` (z < 0: not yet assigned).
-
-    Eq. 5's document denominator ``N_d + Kα`` is the same for every context and
-    cancels; ``inverse[k] = 1 / (n_k + |W|ξ)`` is kept up to date for the two
-    contexts the token leaves and joins.
-    """
-    w = words[i]
-    old = z[i]
-    if old >= 0:
-        n_wk[w, old] -= 1
-        n_k[old] -= 1
-        n_dk[d, old] -= 1
-        inverse[old] = 1.0 / (n_k[old] + v_xi)
-    total = 0.0
-    for k in range(n_contexts):
-        total += (n_wk[w, k] + xi) * inverse[k] * (n_dk[d, k] + alpha)
-        cumulative[k] = total
-    new = _draw(cumulative, n_contexts, u)
-    z[i] = new
-    n_wk[w, new] += 1
-    n_k[new] += 1
-    n_dk[d, new] += 1
-    inverse[new] = 1.0 / (n_k[new] + v_xi)
-
-
 @numba.njit(cache=True, nogil=True, inline="always")
 def _inverse_totals(n_k: np.ndarray, n_contexts: int, v_xi: float) -> np.ndarray:
     inverse = np.empty(n_contexts)
@@ -97,8 +55,9 @@ def sweep_documents(
 ) -> None:
     """One Gibbs sweep over the tokens of documents ``first_doc:stop_doc`` (Algorithm 1, Eq. 5).
 
-    The step of :func:`_resample` is written out here: this is the hot loop, and
-    calling the helper halves its throughput (measured).
+    The step of Eq. 5 is written out here and in :func:`sample_tokens` rather than shared:
+    this is the hot loop, and a helper halves its throughput (measured, also with numba's
+    ``inline="always"``).
     """
     v_xi = vocab_size * xi
     inverse = _inverse_totals(n_k, n_contexts, v_xi)
@@ -141,27 +100,35 @@ def sample_tokens(
     uniforms: np.ndarray,
 ) -> None:
     """Resample the listed tokens in order (Eq. 5); a token with ``z < 0`` is unassigned
-    and gets its first context from the counts of everything sampled before it."""
+    and gets its first context from the counts of everything sampled before it.
+
+    Eq. 5's document denominator ``N_d + Kα`` is the same for every context and cancels;
+    ``inverse[k] = 1 / (n_k + |W|ξ)`` is kept up to date for the two contexts a token leaves
+    and joins. Written out like :func:`sweep_documents` (a helper per token halves the speed).
+    """
     v_xi = vocab_size * xi
     inverse = _inverse_totals(n_k, n_contexts, v_xi)
     cumulative = np.empty(n_contexts)
     for j in range(tokens.shape[0]):
-        _resample(
-            tokens[j],
-            token_docs[j],
-            words,
-            z,
-            n_wk,
-            n_k,
-            n_dk,
-            n_contexts,
-            alpha,
-            xi,
-            v_xi,
-            inverse,
-            cumulative,
-            uniforms[j],
-        )
+        i = tokens[j]
+        d = token_docs[j]
+        w = words[i]
+        old = z[i]
+        if old >= 0:
+            n_wk[w, old] -= 1
+            n_k[old] -= 1
+            n_dk[d, old] -= 1
+            inverse[old] = 1.0 / (n_k[old] + v_xi)
+        total = 0.0
+        for k in range(n_contexts):
+            total += (n_wk[w, k] + xi) * inverse[k] * (n_dk[d, k] + alpha)
+            cumulative[k] = total
+        new = _draw(cumulative, n_contexts, uniforms[j])
+        z[i] = new
+        n_wk[w, new] += 1
+        n_k[new] += 1
+        n_dk[d, new] += 1
+        inverse[new] = 1.0 / (n_k[new] + v_xi)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -435,3 +402,158 @@ def scene_to_one_context(
     for i in range(start, stop):
         z[i] = target
     return target
+
+
+@numba.njit(cache=True, nogil=True)
+def sample_new_scene(
+    words: np.ndarray,
+    z: np.ndarray,
+    token_scene: np.ndarray,
+    doc_offsets: np.ndarray,
+    word_ids: np.ndarray,
+    d: int,
+    sweeps: int,
+    rejuvenated: np.ndarray,
+    n_wk: np.ndarray,
+    n_k: np.ndarray,
+    n_dk: np.ndarray,
+    n_contexts: int,
+    alpha: float,
+    xi: float,
+    vocab_size: int,
+    u_scene: float,
+    uniforms: np.ndarray,
+) -> np.ndarray:
+    """One online update's sampling (Algorithm 2's loop body): write scene ``d`` (``word_ids``) after
+    the corpus with z = -1 (the arrays must have room for it), put it in one context as a block
+    (:func:`scene_to_one_context`, with ``u_scene``), then ``sweeps`` Eq. 5 sweeps
+    (:func:`sample_tokens`), each over the scene's tokens followed by its share of the
+    ``rejuvenated`` earlier tokens (sweep after sweep; one number of ``uniforms`` per token).
+
+    Returns the contexts of the rejuvenated tokens before sampling.
+    """
+    start = doc_offsets[d]
+    stop = start + word_ids.shape[0]
+    for i in range(start, stop):
+        words[i] = word_ids[i - start]
+        z[i] = -1
+        token_scene[i] = d
+    doc_offsets[d + 1] = stop
+    scene_to_one_context(words, z, start, stop, d, n_wk, n_k, n_dk, n_contexts, alpha, xi, vocab_size, u_scene)
+    previous = np.empty(rejuvenated.shape[0], dtype=np.int32)
+    for j in range(rejuvenated.shape[0]):
+        previous[j] = z[rejuvenated[j]]
+    per_sweep = rejuvenated.shape[0] // sweeps
+    tokens = np.empty(sweeps * (stop - start + per_sweep), dtype=np.int64)
+    token_docs = np.empty(tokens.shape[0], dtype=np.int64)
+    j = 0
+    for s in range(sweeps):
+        for i in range(start, stop):
+            tokens[j] = i
+            token_docs[j] = d
+            j += 1
+        for r in range(s * per_sweep, (s + 1) * per_sweep):
+            tokens[j] = rejuvenated[r]
+            token_docs[j] = token_scene[rejuvenated[r]]
+            j += 1
+    sample_tokens(tokens, token_docs, words, z, n_wk, n_k, n_dk, n_contexts, alpha, xi, vocab_size, uniforms)
+    return previous
+
+
+@numba.njit(cache=True, nogil=True)
+def scene_changes(
+    touched: np.ndarray,
+    previous: np.ndarray,
+    d: int,
+    doc_offsets: np.ndarray,
+    words: np.ndarray,
+    z: np.ndarray,
+    n_wk: np.ndarray,
+    n_dk: np.ndarray,
+    n_contexts: int,
+    alpha: float,
+    k_capacity: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What an online update of scene ``d`` (the last one) changed, from the earlier tokens it may
+    have moved (``touched``, with their contexts before, ``previous``; a token listed more than
+    once counts with its first entry).
+
+    Returns the earlier tokens whose context differs from their first ``previous`` (ascending,
+    int64) and their contexts now (int32); the n_kw entries with a nonzero net change, as rows
+    (context, concept, count now) ordered by concept × ``k_capacity`` + context (int64, m × 3; the
+    scene's tokens count as new); the scene's contexts (int32); and its θ = (n_dk + α) / (N_d + Kα).
+
+    Only a token with some entry differing from its context now can have changed, and those are
+    few: they alone are sorted, then each one's first entry is found by binary search, instead
+    of sorting every entry (a few hundred per update, thousands with a growth check).
+    """
+    n_touched = touched.shape[0]
+    candidates = np.empty(n_touched, dtype=np.int64)
+    n_candidates = 0
+    for j in range(n_touched):
+        if z[touched[j]] != previous[j]:
+            candidates[n_candidates] = touched[j]
+            n_candidates += 1
+    candidates = np.sort(candidates[:n_candidates])
+    n_distinct = 0
+    for j in range(n_candidates):
+        if n_distinct == 0 or candidates[j] != candidates[n_distinct - 1]:
+            candidates[n_distinct] = candidates[j]
+            n_distinct += 1
+    candidates = candidates[:n_distinct]
+    first = np.empty(n_distinct, dtype=np.int32)
+    found = np.zeros(n_distinct, dtype=np.bool_)
+    if n_distinct:
+        for j in range(n_touched):
+            c = np.searchsorted(candidates, touched[j])
+            if c < n_distinct and candidates[c] == touched[j] and not found[c]:
+                first[c] = previous[j]
+                found[c] = True
+    reassigned = np.empty(n_distinct, dtype=np.int64)
+    contexts = np.empty(n_distinct, dtype=np.int32)
+    old = np.empty(n_distinct, dtype=np.int32)
+    n_reassigned = 0
+    for c in range(n_distinct):
+        i = candidates[c]
+        if z[i] != first[c]:
+            reassigned[n_reassigned] = i
+            contexts[n_reassigned] = z[i]
+            old[n_reassigned] = first[c]
+            n_reassigned += 1
+    # Net count changes: each key (concept × k_capacity + context) doubled, plus 1 for a token
+    # joining, so that one plain sort groups the keys and says which way each entry counts.
+    start, stop = doc_offsets[d], doc_offsets[d + 1]
+    keys = np.empty(2 * n_reassigned + stop - start, dtype=np.int64)
+    n_keys = 0
+    for j in range(n_reassigned):
+        w = np.int64(words[reassigned[j]])
+        if old[j] >= 0:
+            keys[n_keys] = 2 * (w * k_capacity + old[j])
+            n_keys += 1
+        keys[n_keys] = 2 * (w * k_capacity + contexts[j]) + 1
+        n_keys += 1
+    for i in range(start, stop):
+        keys[n_keys] = 2 * (np.int64(words[i]) * k_capacity + z[i]) + 1
+        n_keys += 1
+    keys = np.sort(keys[:n_keys])
+    rows = np.empty((n_keys, 3), dtype=np.int64)
+    n_rows = 0
+    j = 0
+    while j < n_keys:
+        key = keys[j] // 2
+        net = 0
+        while j < n_keys and keys[j] // 2 == key:
+            net += 1 if keys[j] % 2 else -1
+            j += 1
+        if net != 0:
+            concept, context = key // k_capacity, key % k_capacity
+            rows[n_rows, 0] = context
+            rows[n_rows, 1] = concept
+            rows[n_rows, 2] = n_wk[concept, context]
+            n_rows += 1
+    assignments = z[start:stop].copy()
+    theta = np.empty(n_contexts)
+    denominator = (stop - start) + n_contexts * alpha
+    for k in range(n_contexts):
+        theta[k] = (n_dk[d, k] + alpha) / denominator
+    return reassigned[:n_reassigned].copy(), contexts[:n_reassigned].copy(), rows[:n_rows].copy(), assignments, theta

@@ -322,51 +322,40 @@ class IncrementalLDA:
         self._state.sweep(self._rng, sweeps)
 
     def learn_scene(self, words: Sequence[str]) -> SceneUpdate:
-        """Add one scene online (Algorithm 2's loop body) and report what changed."""
-        words = _validated_words(words, "words")
+        """Add one scene online (Algorithm 2's loop body) and report what changed.
+
+        The sampling is one kernel call (:meth:`LDAState.add_scene_online`) and so is the report
+        (:meth:`LDAState.scene_changes`): at ~80 tokens an update is dominated by per-call
+        overhead, so the bookkeeping is fused rather than spread over numpy calls.
+        """
+        words = _scene_words(words)
         state, h = self._state, self.hyperparameters
         contexts_before = state.n_contexts
-        additions = self._add_concepts(words)
-        ids = self._ids(words)
+        ids, additions = self._scene_ids(words)
         earlier = state.n_tokens
-        scene = state.append_document(ids)
-        state.scene_to_one_context(scene, self._rng)
-        scene_tokens = np.arange(earlier, state.n_tokens, dtype=np.int64)
-        rejuvenated = self._rng.integers(0, earlier, size=(h.scene_sweeps, h.rejuvenation_tokens if earlier else 0))
-        touched = [rejuvenated.ravel()]
-        previous = [state.assignments[touched[0]]]
-        shape = (h.scene_sweeps, scene_tokens.shape[0])
-        sweeps = np.hstack([np.broadcast_to(scene_tokens, shape), rejuvenated])
-        sweep_docs = np.hstack([np.full(shape, scene), state.scene_of(rejuvenated)])
-        state.sample_tokens(sweeps.ravel(), self._rng, sweep_docs.ravel())
+        scene, touched, previous = state.add_scene_online(ids, self._rng, h.scene_sweeps, h.rejuvenation_tokens)
         growth_checked = self._growth_due(scene)
         if growth_checked:
             first_doc = max(0, state.n_documents - h.birth_window)
             window = np.arange(state.doc_offsets[first_doc], earlier, dtype=np.int64)
-            touched.append(window)
-            previous.append(state.assignments[window].copy())
+            touched = np.concatenate([touched, window])
+            previous = np.concatenate([previous, state.assignments[window]])
             self._grow_contexts(first_doc, online=True)
-        reassigned, old_contexts = _first_occurrences(np.concatenate(touched), np.concatenate(previous))
-        new_contexts = state.assignments[reassigned]
-        changed = old_contexts != new_contexts
-        reassigned, old_contexts, new_contexts = reassigned[changed], old_contexts[changed], new_contexts[changed]
-        changed_counts = self._changed_counts(
-            np.concatenate([state.words[reassigned], ids]),
-            np.concatenate([old_contexts, np.full(ids.shape[0], -1, dtype=np.int32)]),
-            np.concatenate([new_contexts, state.assignments[scene_tokens]]),
+        reassigned, contexts, changed_counts, assignments, theta = state.scene_changes(
+            scene, touched, previous, h.max_contexts + 1
         )
         return SceneUpdate(
             scene_index=scene,
             word_ids=ids,
-            assignments=state.assignments[scene_tokens].copy(),
+            assignments=assignments,
             reassigned_tokens=reassigned,
-            reassigned_contexts=new_contexts.astype(np.int32),
+            reassigned_contexts=contexts,
             changed_counts=changed_counts,
             contexts_before=contexts_before,
             contexts_after=state.n_contexts,
             vocabulary_additions=tuple(additions),
             rng_state=self._rng.bit_generator.state,
-            context_posterior=state.context_given_scene(scene, scene + 1)[0],
+            context_posterior=theta,
             growth_checked=growth_checked,
         )
 
@@ -614,20 +603,13 @@ class IncrementalLDA:
     def _ids(self, words: Sequence[str]) -> np.ndarray:
         return np.fromiter((self._index[w] for w in words), dtype=np.int32, count=len(words))
 
-    def _changed_counts(self, words: np.ndarray, old: np.ndarray, new: np.ndarray) -> np.ndarray:
-        """(context, concept, count) of every n_kw entry with a nonzero net change."""
-        k_capacity = self.hyperparameters.max_contexts + 1
-        words, old, new = words.astype(np.int64), old.astype(np.int64), new.astype(np.int64)
-        keys = np.concatenate([words[old >= 0] * k_capacity + old[old >= 0], words * k_capacity + new])
-        deltas = np.concatenate(
-            [-np.ones(int((old >= 0).sum()), dtype=np.int64), np.ones(words.shape[0], dtype=np.int64)]
-        )
-        unique, inverse = np.unique(keys, return_inverse=True)
-        net = np.bincount(inverse, weights=deltas, minlength=unique.shape[0])
-        entries = unique[net != 0]
-        concepts, contexts = entries // k_capacity, entries % k_capacity
-        counts = self._state.n_wk[concepts, contexts]
-        return np.stack([contexts, concepts, counts], axis=1).astype(np.int64)
+    def _scene_ids(self, words: Sequence[str]) -> tuple[np.ndarray, list[str]]:
+        """The scene's concept ids (int32) and the concepts it adds to the vocabulary, in order."""
+        try:  # the common case, every concept known: one pass of dict lookups
+            return np.fromiter(map(self._index.__getitem__, words), dtype=np.int32, count=len(words)), []
+        except KeyError:
+            additions = self._add_concepts(words)
+            return self._ids(words), additions
 
 
 def _validated_words(words: Any, field_name: str, allow_empty: bool = False) -> list[str]:
@@ -640,6 +622,14 @@ def _validated_words(words: Any, field_name: str, allow_empty: bool = False) -> 
         if not isinstance(word, str) or not word:
             raise InvalidInputError(field_name, f"concept names must be non-empty strings, got {word!r}")
     return words
+
+
+def _scene_words(words: Any) -> Sequence[str]:
+    """``_validated_words(words, "words")``; a list or tuple of non-empty ``str`` (what the
+    service passes) is accepted as it is, after checks that run in C, not per word in Python."""
+    if type(words) in (list, tuple) and words and set(map(type, words)) == {str} and "" not in words:
+        return words
+    return _validated_words(words, "words")
 
 
 def _validated_seed(seed: Any) -> int:
@@ -662,9 +652,3 @@ def _improvement_in_standard_errors(proposed: np.ndarray, current: np.ndarray) -
     if error > 0:
         return float(difference / error)
     return np.inf if difference > 0 else -np.inf
-
-
-def _first_occurrences(tokens: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distinct tokens with the value recorded at their first occurrence."""
-    unique, first = np.unique(tokens, return_index=True)
-    return unique.astype(np.int64), values[first]

@@ -179,11 +179,7 @@ class LDAState:
         (:meth:`sample_tokens` assigns ``z < 0`` tokens).
         """
         start, stop = self.n_tokens, self.n_tokens + word_ids.shape[0]
-        self._words = _with_capacity(self._words, stop)
-        self._z = _with_capacity(self._z, stop)
-        self._token_scene = _with_capacity(self._token_scene, stop)
-        self._offsets = _with_capacity(self._offsets, self.n_documents + 2)
-        self._n_dk = _with_capacity(self._n_dk, self.n_documents + 1, self._n_dk.shape[1])
+        self._reserve_scene(stop)
         self._words[start:stop] = word_ids
         self._z[start:stop] = -1
         self._token_scene[start:stop] = self.n_documents
@@ -191,6 +187,18 @@ class LDAState:
         self._offsets[self.n_documents] = stop
         self.n_tokens = stop
         return self.n_documents - 1
+
+    def _reserve_scene(self, stop: int) -> None:
+        """Room for one more scene whose tokens end at ``stop`` (each check is one comparison in
+        the common case: this runs for every online update)."""
+        if stop > self._words.shape[0]:  # the three token arrays always grow together
+            self._words = _with_capacity(self._words, stop)
+            self._z = _with_capacity(self._z, stop)
+            self._token_scene = _with_capacity(self._token_scene, stop)
+        if self.n_documents + 2 > self._offsets.shape[0]:
+            self._offsets = _with_capacity(self._offsets, self.n_documents + 2)
+        if self.n_documents + 1 > self._n_dk.shape[0]:
+            self._n_dk = _with_capacity(self._n_dk, self.n_documents + 1, self._n_dk.shape[1])
 
     # Sampling.
 
@@ -251,6 +259,50 @@ class LDAState:
                 self._words, self._z, start, stop, scene, self._n_wk, self._n_k, self._n_dk,
                 self.n_contexts, self.alpha, self.xi, self.vocab_size, float(rng.random()),
             )
+        )  # fmt: skip
+
+    def add_scene_online(
+        self, word_ids: np.ndarray, rng: np.random.Generator, sweeps: int, rejuvenation_tokens: int
+    ) -> tuple[int, np.ndarray, np.ndarray]:
+        """Append a scene and sample it online: the whole scene joins one context
+        (:meth:`scene_to_one_context`), then ``sweeps`` Eq. 5 sweeps, each over its tokens followed
+        by ``rejuvenation_tokens`` earlier tokens drawn uniformly (Canini, Shi & Griffiths 2009).
+
+        Returns the scene's index, the rejuvenated tokens (sweep after sweep, int64) and their
+        contexts before the update (int32). The same as :meth:`append_document`,
+        :meth:`scene_to_one_context` and :meth:`sample_tokens` one after the other, with the same
+        random draws in the same order (the scene's context, the earlier tokens, one uniform per
+        sampled token), in one kernel call (``kernels.sample_new_scene``): the update's latency is
+        mostly per-call overhead.
+        """
+        earlier = self.n_tokens
+        self._reserve_scene(earlier + word_ids.shape[0])
+        u_scene = rng.random()
+        per_sweep = rejuvenation_tokens if earlier else 0
+        # Flat: the same draws as size=(sweeps, per_sweep), which costs microseconds more.
+        rejuvenated = rng.integers(0, earlier, sweeps * per_sweep)
+        uniforms = self._draw_uniforms(rng, sweeps * (word_ids.shape[0] + per_sweep))
+        scene = self.n_documents
+        previous = kernels.sample_new_scene(
+            self._words, self._z, self._token_scene, self._offsets, word_ids, scene, sweeps, rejuvenated,
+            self._n_wk, self._n_k, self._n_dk, self.n_contexts, self.alpha, self.xi, self.vocab_size,
+            u_scene, uniforms,
+        )  # fmt: skip
+        self.n_documents += 1
+        self.n_tokens = earlier + word_ids.shape[0]
+        return scene, rejuvenated, previous
+
+    def scene_changes(
+        self, scene: int, touched: np.ndarray, previous: np.ndarray, k_capacity: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """What the online update of the last ``scene`` changed, given the earlier tokens it may
+        have moved (``touched``) and their contexts before (``previous``; a token listed twice
+        counts with its first entry): the moved tokens (ascending) and their contexts, the
+        changed n_kw entries as (context, concept, count) rows ordered by concept × ``k_capacity``
+        + context, the scene's contexts and its θ (``kernels.scene_changes``)."""
+        return kernels.scene_changes(
+            touched, previous, scene, self._offsets, self._words, self._z, self._n_wk, self._n_dk,
+            self.n_contexts, self.alpha, k_capacity,
         )  # fmt: skip
 
     def reassign(self, tokens: np.ndarray, contexts: np.ndarray) -> None:

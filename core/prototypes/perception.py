@@ -28,18 +28,29 @@ active. The mapping, and why:
   (each training instance against prototype means that do not contain it):
   in-sample distances to one's own mean are systematically short and would make
   the confidences too sharp.
+
+Cost: a perception is on the service's request path (one per object of a scene).
+The applied behaviours' effects go through Eq. 1 as one array, all verbs at once
+(numba kernel, ``_eq1_kernels``), and the softmax is written out in numpy
+(max-shifted, the arithmetic of ``scipy.special.softmax``, whose per-call dispatch
+cost more than the rest); :func:`perceive_many` does a whole scene in one pass.
+The probabilities equal the former one-behaviour-at-a-time code bit for bit
+(measured on the paper world; ``tests/test_prototypes_perception.py`` holds the
+reference at 1e-12).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING
+import functools
+from collections.abc import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from scipy.optimize import minimize
-from scipy.special import expit, log_expit, log_softmax, softmax
+from scipy.special import expit, log_expit, log_softmax
 
 from core.errors import InvalidInputError
+from core.features.layout import EFFECT_SIZE, ENTITY_SIZE
 from core.vocabulary import Vocabulary
 
 if TYPE_CHECKING:
@@ -54,7 +65,7 @@ _TEMPERATURE_RANGE = 1e3
 
 def noun_probabilities(prototypes: PrototypeSet, noun_distances: np.ndarray) -> np.ndarray:
     """softmax(-D / T + b) over the nouns (last axis)."""
-    return softmax(-np.asarray(noun_distances) / prototypes.temperatures["noun"] + prototypes.biases["noun"], axis=-1)
+    return _softmax(-np.asarray(noun_distances) / prototypes.temperatures["noun"] + prototypes.biases["noun"])
 
 
 def first_adjective_probabilities(prototypes: PrototypeSet, pair_distances: np.ndarray) -> np.ndarray:
@@ -64,13 +75,15 @@ def first_adjective_probabilities(prototypes: PrototypeSet, pair_distances: np.n
     return expit(margins / prototypes.temperatures["adjective"] + prototypes.biases["adjective"])
 
 
-def verb_match_probability(prototypes: PrototypeSet, verb_distances: np.ndarray, verb: int) -> float:
-    """P(the effect matches verb ``verb`` rather than another verb), at even prior odds."""
-    n_verbs = len(verb_distances)
+def verb_match_probabilities(prototypes: PrototypeSet, verb_distances: np.ndarray, verbs: np.ndarray) -> np.ndarray:
+    """P(effect j matches verb ``verbs[j]`` rather than another verb), at even prior odds,
+    from the (m, K) distances of m effects to the K verb prototypes."""
+    verb_distances = np.asarray(verb_distances)
+    n_verbs = verb_distances.shape[-1]
     if n_verbs < 2:
-        return NO_EVIDENCE
-    posterior = softmax(-np.asarray(verb_distances) / prototypes.temperatures["verb"] + prototypes.biases["verb"])
-    q = float(posterior[verb])
+        return np.full(len(verbs), NO_EVIDENCE)
+    posterior = _softmax(-verb_distances / prototypes.temperatures["verb"] + prototypes.biases["verb"])
+    q = posterior[np.arange(len(verbs)), verbs]
     return q * (n_verbs - 1) / (q * (n_verbs - 1) + 1.0 - q)
 
 
@@ -83,27 +96,140 @@ def perceive(
     its behaviour's effect (``effects[verb]``, 66 dims) matches the verb, or 0.5
     when that behaviour was not applied.
     """
+    return _probabilities(prototypes, _observations(prototypes, [entity], [effects], indexed=False))[0]
+
+
+def perceive_many(
+    prototypes: PrototypeSet,
+    entities: Sequence[np.ndarray],
+    effects: Sequence[Mapping[str, np.ndarray] | None],
+) -> np.ndarray:
+    """:func:`perceive` of the n objects of a scene at once: (n, n_concepts), row i equal
+    to ``perceive(prototypes, entities[i], effects[i])``, bit for bit.
+
+    The objects are checked together and all their entities, then all their effects,
+    go through Eq. 1 in one kernel call, which is what makes a scene cheap. Bad input
+    raises the error :func:`perceive` would, its field indexed by the object
+    (``entities[2]``, ``effects[2]``, ``effects[2].push``); the first bad object is reported.
+    """
+    if len(entities) != len(effects):
+        raise InvalidInputError("effects", f"has {len(effects)} effect maps for {len(entities)} entities")
+    if len(entities) == 0:
+        return np.zeros((0, len(prototypes.vocabulary.concepts)))
+    return _probabilities(prototypes, _observations(prototypes, entities, effects, indexed=True))
+
+
+class _Observations(NamedTuple):
+    """Checked, standardised observations of n objects: entities z (n, 91) and all their
+    effects (m, 66), effect j being object ``owners[j]``'s behaviour ``verbs[j]`` (verb column)."""
+
+    entities: np.ndarray
+    effects: np.ndarray
+    owners: np.ndarray
+    verbs: np.ndarray
+
+
+def _probabilities(prototypes: PrototypeSet, observed: _Observations) -> np.ndarray:
+    """Perception (n, n_concepts) of the observed objects (the module docstring's mapping)."""
     vocabulary = prototypes.vocabulary
-    entity_distances = prototypes.distances(entity)
-    if entity_distances.ndim != 1:
-        raise InvalidInputError("entity", "perceive takes one entity vector of 91 features")
-    n_nouns = len(vocabulary.nouns)
-    nouns = noun_probabilities(prototypes, entity_distances[:n_nouns])
-    first = first_adjective_probabilities(prototypes, entity_distances[n_nouns:].reshape(-1, 2))
-    adjectives = np.column_stack([first, 1.0 - first]).ravel()
-    verbs = np.full(len(vocabulary.verbs), NO_EVIDENCE)
-    for behaviour, effect in (effects or {}).items():
-        if behaviour not in vocabulary.verbs:
-            raise InvalidInputError("effects", f"{behaviour!r} is not a verb of the vocabulary")
-        try:
-            distances = prototypes.effect_distances(effect)
-        except InvalidInputError as error:
-            raise InvalidInputError(f"effects.{behaviour}", error.problem) from None
-        if distances.ndim != 1:
-            raise InvalidInputError(f"effects.{behaviour}", "must be one effect vector of 66 features")
-        index = vocabulary.verbs.index(behaviour)
-        verbs[index] = verb_match_probability(prototypes, distances, index)
-    return np.concatenate([nouns, adjectives, verbs])
+    n_objects = len(observed.entities)
+    n_nouns, n_entity = len(vocabulary.nouns), len(vocabulary.nouns) + len(vocabulary.adjectives)
+    entity_distances = prototypes.entity_eq1.distances(observed.entities)
+    out = np.empty((n_objects, len(vocabulary.concepts)))
+    out[:, :n_nouns] = noun_probabilities(prototypes, entity_distances[:, :n_nouns])
+    first = first_adjective_probabilities(prototypes, entity_distances[:, n_nouns:].reshape(n_objects, -1, 2))
+    out[:, n_nouns:n_entity:2] = first
+    out[:, n_nouns + 1 : n_entity : 2] = 1.0 - first
+    out[:, n_entity:] = NO_EVIDENCE
+    if len(observed.verbs):
+        verb_distances = prototypes.verb_eq1.distances(observed.effects)
+        match = verb_match_probabilities(prototypes, verb_distances, observed.verbs)
+        out[observed.owners, n_entity + observed.verbs] = match
+    return out
+
+
+def _observations(
+    prototypes: PrototypeSet,
+    entities: Sequence[object],
+    effects: Sequence[Mapping[str, object] | None],
+    *,
+    indexed: bool,
+) -> _Observations:
+    """Check and standardise the objects' observations, in input order.
+
+    Fast path: every entity, then every effect, is stacked into one array and checked
+    at once. When that fails (a bad shape, a non-finite value, an unknown behaviour),
+    each object is checked on its own, in order, so that the error is the one a
+    one-by-one check reports: ``entity`` / ``effects`` / ``effects.<behaviour>``, or
+    ``entities[i]`` / ``effects[i]`` / ``effects[i].<behaviour>`` when ``indexed``.
+    """
+    columns = _verb_columns(prototypes.vocabulary)
+    maps = [object_effects or {} for object_effects in effects]
+    try:
+        entity_rows = np.array(entities, dtype=np.float64)
+        verbs = np.array([columns[behaviour] for effect_map in maps for behaviour in effect_map], dtype=np.intp)
+        vectors = [vector for effect_map in maps for vector in effect_map.values()]
+        effect_rows = np.array(vectors, dtype=np.float64) if vectors else np.zeros((0, EFFECT_SIZE))
+    except (KeyError, TypeError, ValueError):
+        return _checked_observations(prototypes, entities, maps, indexed)
+    if (
+        entity_rows.shape != (len(entities), ENTITY_SIZE)
+        or effect_rows.shape != (len(verbs), EFFECT_SIZE)
+        or not np.isfinite(entity_rows).all()
+        or not np.isfinite(effect_rows).all()
+    ):
+        return _checked_observations(prototypes, entities, maps, indexed)
+    owners = np.repeat(np.arange(len(maps)), [len(effect_map) for effect_map in maps])
+    return _Observations(
+        (entity_rows - prototypes.entity_center) / prototypes.entity_scale,
+        effect_rows / prototypes.effect_scale,
+        owners,
+        verbs,
+    )
+
+
+def _checked_observations(
+    prototypes: PrototypeSet, entities: Sequence[object], maps: list[Mapping[str, object]], indexed: bool
+) -> _Observations:
+    """:func:`_observations`, one object and one effect at a time; raises at the first bad one."""
+    columns = _verb_columns(prototypes.vocabulary)
+    entity_rows, effect_rows, owners, verbs = [], [], [], []
+    for i, (entity, effect_map) in enumerate(zip(entities, maps, strict=True)):
+        entity_field, effects_field = (f"entities[{i}]", f"effects[{i}]") if indexed else ("entity", "effects")
+        entity_rows.append(prototypes.standardised_entities(entity, entity_field))
+        if np.ndim(entity) != 1:
+            raise InvalidInputError(entity_field, "perceive takes one entity vector of 91 features")
+        for behaviour, effect in effect_map.items():
+            if behaviour not in columns:
+                raise InvalidInputError(effects_field, f"{behaviour!r} is not a verb of the vocabulary")
+            try:
+                effect_rows.append(prototypes.standardised_effects(effect))
+            except InvalidInputError as error:
+                raise InvalidInputError(f"{effects_field}.{behaviour}", error.problem) from None
+            if np.ndim(effect) != 1:
+                raise InvalidInputError(f"{effects_field}.{behaviour}", "must be one effect vector of 66 features")
+            owners.append(i)
+            verbs.append(columns[behaviour])
+    return _Observations(
+        np.concatenate(entity_rows),
+        np.concatenate(effect_rows) if effect_rows else np.zeros((0, EFFECT_SIZE)),
+        np.array(owners, dtype=np.intp),
+        np.array(verbs, dtype=np.intp),
+    )
+
+
+@functools.lru_cache(maxsize=64)
+def _verb_columns(vocabulary: Vocabulary) -> dict[str, int]:
+    return {verb: i for i, verb in enumerate(vocabulary.verbs)}
+
+
+def _softmax(x: np.ndarray) -> np.ndarray:
+    """softmax over the last axis, shifted by its maximum so that exp cannot overflow
+    (the largest term is exp(0) = 1): scipy.special.softmax's arithmetic, operation for
+    operation, without its array-API dispatch, which took a third of a perception's
+    time when it ran once per applied behaviour."""
+    shifted = np.exp(x - x.max(axis=-1, keepdims=True))
+    return shifted / shifted.sum(axis=-1, keepdims=True)
 
 
 def fit_calibration(

@@ -46,6 +46,7 @@ Choices the paper leaves open (docs/prototypes.md gives the reasons at length):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -53,6 +54,7 @@ from scipy.cluster.vq import kmeans2
 
 from core.errors import InvalidInputError
 from core.features.layout import EFFECT_LAYOUT, EFFECT_SIZE, ENTITY_LAYOUT, ENTITY_SIZE, FeatureLayout
+from core.prototypes import _eq1_kernels as eq1_kernels
 from core.prototypes.perception import fit_calibration
 from core.prototypes.rgng import RGNGParameters, robust_growing_neural_gas
 from core.vocabulary import Vocabulary
@@ -134,6 +136,8 @@ class PrototypeSet:
 
     Entity rows are the vocabulary's nouns then adjectives (node order); verb rows
     its verbs. Means and variances live in the standardised feature space.
+    Treated as immutable: the Eq. 1 constants (:attr:`entity_eq1`, :attr:`verb_eq1`)
+    are derived once, on first use, from the arrays as they are then.
     """
 
     vocabulary: Vocabulary
@@ -187,17 +191,33 @@ class PrototypeSet:
     def entity_concepts(self) -> tuple[str, ...]:
         return self.vocabulary.nouns + self.vocabulary.adjectives
 
+    @cached_property
+    def entity_eq1(self) -> Eq1Prototypes:
+        """Eq. 1 constants of the noun and adjective prototypes (derived once: a query pays only the distances)."""
+        return Eq1Prototypes.from_relevance(self.entity_means, self.entity_relevance)
+
+    @cached_property
+    def verb_eq1(self) -> Eq1Prototypes:
+        """Eq. 1 constants of the verb prototypes."""
+        return Eq1Prototypes.from_relevance(self.verb_means, self.verb_relevance)
+
     def distances(self, entity: np.ndarray) -> np.ndarray:
         """D(c, e) of Eq. 1 for every noun and adjective; (91,) -> (n_entity,), (n, 91) -> (n, n_entity)."""
-        z = (_feature_rows(entity, ENTITY_SIZE, "entity") - self.entity_center) / self.entity_scale
-        out = eq1_distances(z, self.entity_means, self.entity_relevance)
+        out = self.entity_eq1.distances(self.standardised_entities(entity))
         return out[0] if np.ndim(entity) == 1 else out
 
     def effect_distances(self, effect: np.ndarray) -> np.ndarray:
         """D(v, f) of Eq. 1 for every verb; (66,) -> (n_verbs,), (m, 66) -> (m, n_verbs)."""
-        z = _feature_rows(effect, EFFECT_SIZE, "effect") / self.effect_scale
-        out = eq1_distances(z, self.verb_means, self.verb_relevance)
+        out = self.verb_eq1.distances(self.standardised_effects(effect))
         return out[0] if np.ndim(effect) == 1 else out
+
+    def standardised_entities(self, entity: np.ndarray, field_name: str = "entity") -> np.ndarray:
+        """Validated entity vector(s) z-scored as in training: (91,) or (n, 91) -> (n, 91)."""
+        return (_feature_rows(entity, ENTITY_SIZE, field_name) - self.entity_center) / self.entity_scale
+
+    def standardised_effects(self, effect: np.ndarray, field_name: str = "effect") -> np.ndarray:
+        """Validated effect vector(s) in units of the pooled within-verb scatter: (66,) or (m, 66) -> (m, 66)."""
+        return _feature_rows(effect, EFFECT_SIZE, field_name) / self.effect_scale
 
     def table(self) -> str:
         """Table VIII: one row per concept, its relevance symbol per feature, blocks spaced."""
@@ -256,16 +276,45 @@ def format_prototype_table(prototypes: PrototypeSet) -> str:
     return prototypes.table()
 
 
-def eq1_distances(z: np.ndarray, means: np.ndarray, relevance: np.ndarray) -> np.ndarray:
-    """Eq. 1 for standardised rows z (n, d) against prototype means (C, d): (n, C).
+@dataclass(frozen=True, eq=False)
+class Eq1Prototypes:
+    """The constants of Eq. 1 for C prototypes over d features (read-only arrays).
 
-    D(c, x) = sqrt(sum over relevant i of (x_i - mu_c^i)^2) / |R_c minus R*_c|; a
-    concept without a relevant feature uses all of them.
+    ``weights[c, i]`` is 1.0 for a feature of R_c minus R*_c and 0.0 otherwise (all
+    1.0 for a concept without a relevant feature), ``sizes[c]`` their count as a
+    float. The distances are a numba loop (``_eq1_kernels``) that reproduces the
+    former numpy expression ``sqrt(((z - mu)**2 * weights).sum()) / sizes`` bit for bit;
+    its arrays are C-ordered float64, so that it compiles once (≈ 3 s, then cached).
     """
-    relevant = relevance != IRRELEVANT
-    relevant[relevant.sum(axis=1) == 0] = True
-    squared = ((z[:, None, :] - means[None, :, :]) ** 2 * relevant[None, :, :]).sum(axis=2)
-    return np.sqrt(squared) / relevant.sum(axis=1)
+
+    means: np.ndarray
+    weights: np.ndarray
+    sizes: np.ndarray
+
+    @classmethod
+    def from_relevance(cls, means: np.ndarray, relevance: np.ndarray) -> Eq1Prototypes:
+        relevant = np.asarray(relevance) != IRRELEVANT
+        relevant[relevant.sum(axis=1) == 0] = True
+        arrays = (
+            np.array(means, dtype=np.float64, order="C"),
+            relevant.astype(np.float64, order="C"),
+            relevant.sum(axis=1).astype(np.float64),
+        )
+        for array in arrays:
+            array.flags.writeable = False
+        return cls(*arrays)
+
+    def distances(self, z: np.ndarray) -> np.ndarray:
+        """D(c, x) = sqrt(sum over relevant i of (x_i - mu_c^i)^2) / |R_c minus R*_c| for rows z (n, d): (n, C)."""
+        return eq1_kernels.eq1_distances(
+            np.ascontiguousarray(z, dtype=np.float64), self.means, self.weights, self.sizes
+        )
+
+
+def eq1_distances(z: np.ndarray, means: np.ndarray, relevance: np.ndarray) -> np.ndarray:
+    """Eq. 1 for standardised rows z (n, d) against prototype means (C, d): (n, C); a
+    concept without a relevant feature uses all of them (:class:`Eq1Prototypes`)."""
+    return Eq1Prototypes.from_relevance(means, relevance).distances(z)
 
 
 def _symbol_row(name: str, codes: np.ndarray, layout: FeatureLayout, width: int) -> str:

@@ -218,7 +218,12 @@ def test_webs_settled_beforehand_give_the_identical_result(world, web, context_m
         applied = rng.uniform(size=(4, len(world.vocabulary.verbs))) < 0.5
         fresh = contextual_feedback(web, context_model, perceptions, world.vocabulary, applied=applied, seed=trial)
         reused = contextual_feedback(
-            web, context_model, perceptions, world.vocabulary, applied=applied, seed=trial,
+            web,
+            context_model,
+            perceptions,
+            world.vocabulary,
+            applied=applied,
+            seed=trial,
             perceived=web.infer_many(perceptions, applied=applied),
         )
         for field in ("web", "in_context", "in_context_web", "context_posterior"):
@@ -228,7 +233,7 @@ def test_webs_settled_beforehand_give_the_identical_result(world, web, context_m
         contextual_feedback(web, context_model, perceptions, world.vocabulary, applied=applied, perceived=[])
 
 
-def _cold_damped_settle(web, evidence, applied, previous):
+def _cold_damped_settle(web, evidence, applied, previous, **options):
     """The loop's settling before warm starts and undamped passes: cold, ConceptWeb's default damping."""
     return web.infer_many(evidence, applied=applied)
 

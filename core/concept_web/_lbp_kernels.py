@@ -17,6 +17,13 @@ Messages are normalised probability vectors; a variable's product of incoming
 messages is rescaled whenever it gets tiny, so a variable with many neighbours
 cannot underflow. The schedule is synchronous (every message is computed from the previous
 iteration's messages), which makes the result independent of edge order.
+
+Two entry points run :func:`propagate` over a batch of objects in one call, with its
+working arrays allocated once (:func:`scratch`): :func:`settle_many` for a
+``ConceptWeb`` (it builds the unary factors from the perceptions, can skip the
+sum-product pass and warm-start either pass, and reads off the marginals and the MAP)
+and :func:`propagate_many` for any pairwise MRF given its unaries
+(``loopy_belief_propagation``).
 """
 
 from __future__ import annotations
@@ -46,6 +53,12 @@ def _products(unary, cardinalities, incoming_start, incoming, messages, out):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def scratch(n_var: int, n_directed: int, width: int) -> tuple:
+    """Working arrays for :func:`propagate`, allocated once for any number of runs on one graph."""
+    return np.zeros((n_directed, width)), np.zeros((n_var, width)), np.zeros(width), np.zeros(width)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def propagate(
     unary: np.ndarray,
     sends: np.ndarray,
@@ -56,11 +69,13 @@ def propagate(
     max_iterations: int,
     beliefs: np.ndarray,
     messages: np.ndarray,
+    work: tuple,
 ) -> tuple[int, bool]:
     """Run sum-product (or max-product) LBP for one object; fill ``beliefs`` (n_var, K).
 
     ``messages`` (n_directed, K) holds the starting messages on entry (uniform for
-    a cold start; a previous run's for a warm start) and the final ones on return.
+    a cold start; a previous run's for a warm start) and the final ones on return
+    (padded entries zero). ``work`` is :func:`scratch`'s arrays (their padded entries stay zero).
 
     A message update is ``m_new = (1 - damping) * m_computed + damping * m_old``;
     the run has converged when no message entry moved by ``tolerance`` or more in
@@ -73,18 +88,18 @@ def propagate(
     is the product of the others.
     """
     cardinalities, sources, targets, factor_start, factors, incoming_start, incoming = graph
+    updated, product, cavity, computed = work
     n_var = cardinalities.shape[0]
     width = unary.shape[1]
     n_directed = sources.shape[0]
     start_messages = messages
+    # Messages alternate between ``messages`` and ``updated``; every message a variable sends is
+    # written before it is read, and one it does not send stays uniform in both.
     for d in range(n_directed):
         if not sends[sources[d]]:
             for b in range(cardinalities[targets[d]]):
                 messages[d, b] = 1.0 / cardinalities[targets[d]]
-    updated = messages.copy()
-    product = np.zeros((n_var, width))
-    cavity = np.zeros(width)
-    computed = np.zeros(width)
+                updated[d, b] = messages[d, b]
     iterations = 0
     converged = n_directed == 0
     while not converged and iterations < max_iterations:
@@ -149,12 +164,11 @@ def propagate(
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def uniform_messages(cardinalities: np.ndarray, targets: np.ndarray, messages: np.ndarray) -> None:
-    """Set every message of ``messages`` (n_objects, n_directed, K) to the uniform vector (a cold start)."""
-    for i in range(messages.shape[0]):
-        for d in range(targets.shape[0]):
-            n_target = cardinalities[targets[d]]
-            for b in range(n_target):
-                messages[i, d, b] = 1.0 / n_target
+    """Set every message of ``messages`` (n_directed, K) to the uniform vector (a cold start), padding 0."""
+    for d in range(targets.shape[0]):
+        n_target = cardinalities[targets[d]]
+        for b in range(messages.shape[1]):
+            messages[d, b] = 1.0 / n_target if b < n_target else 0.0
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -162,31 +176,128 @@ def propagate_many(
     unary: np.ndarray,
     sends: np.ndarray,
     graph: tuple,
+    damping: float,
+    tolerance: float,
+    max_iterations: int,
+    marginals: np.ndarray,
+    max_marginals: np.ndarray,
+    iterations: np.ndarray,
+    converged: np.ndarray,
+) -> None:
+    """Sum-product then max-product LBP, both from uniform messages, for every object of
+    ``unary`` (n_objects, n_var, K) and ``sends`` (n_objects, n_var): what
+    ``loopy_belief_propagation`` solves. ``iterations`` and ``converged`` are
+    (n_objects, 2), the sum-product pass in column 0 and the max-product pass in column 1.
+    """
+    cardinalities, targets = graph[0], graph[2]
+    messages = np.empty((targets.shape[0], unary.shape[2]))
+    work = scratch(cardinalities.shape[0], targets.shape[0], unary.shape[2])
+    for i in range(unary.shape[0]):
+        for column in range(2):
+            out = marginals[i] if column == 0 else max_marginals[i]
+            uniform_messages(cardinalities, targets, messages)
+            steps, done = propagate(
+                unary[i], sends[i], graph, column == 1, damping, tolerance, max_iterations, out, messages, work
+            )
+            iterations[i, column] = steps
+            converged[i, column] = done
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def settle_many(
+    perceptions: np.ndarray,
+    applied: np.ndarray,
+    layout: tuple,
+    clip: tuple,
+    graph: tuple,
+    runs: np.ndarray,
+    cold: np.ndarray,
     damping: np.ndarray,
     tolerance: float,
     max_iterations: np.ndarray,
-    marginals: np.ndarray,
-    max_marginals: np.ndarray,
+    probabilities: np.ndarray,
+    map_configuration: np.ndarray,
     iterations: np.ndarray,
     converged: np.ndarray,
     sum_messages: np.ndarray,
     max_messages: np.ndarray,
 ) -> None:
-    """Sum-product and max-product LBP for every object of ``unary`` (n_objects, n_var, K)
-    and ``sends`` (n_objects, n_var).
+    """Settle the concept web of every object of ``perceptions`` (n_objects, n_concepts) in one call.
 
-    ``damping`` and ``max_iterations`` (2,), and ``iterations`` and ``converged``
-    (n_objects, 2), hold the sum-product pass in column 0 and the max-product
-    pass in column 1. ``sum_messages`` and ``max_messages`` (n_objects, n_directed, K)
-    are each pass's starting messages on entry (uniform for a cold start, see
-    :func:`uniform_messages`) and its final messages on return.
+    The unary factors are ``ConceptWeb._evidence``'s: each concept's perception clipped
+    to ``clip`` = (low, high) at its (variable, state), a verb's inactive state 1 − that,
+    and a verb not ``applied`` (n_objects, n_verbs) gets (1, 1) and does not send.
+    ``layout`` = (concept_variable, concept_state, verb_variables, verb_concepts).
+    ``runs``, ``cold``, ``damping`` and ``max_iterations`` (2,), and ``iterations`` and
+    ``converged`` (n_objects, 2), hold the sum-product pass in column 0 and the
+    max-product pass in column 1. A pass with ``runs`` false is skipped (0 iterations,
+    converged, its messages not read: ``sum_messages`` may then be (n_objects, 0, 0)); a
+    ``cold`` pass starts from uniform messages, the others from the messages given in
+    ``sum_messages`` / ``max_messages`` (n_objects, n_directed, K), which hold each
+    pass's final messages on return.
+    Fills ``probabilities`` (the sum-product marginal of each concept's state, NaN when
+    that pass is skipped) and ``map_configuration`` (whether each concept's state is its
+    variable's argmax of the max-marginals, ties to the lowest state, as ``np.argmax``).
     """
-    for i in range(unary.shape[0]):
+    concept_variable, concept_state, verb_variables, verb_concepts = layout
+    low, high = clip
+    cardinalities, targets = graph[0], graph[2]
+    n_var, width = cardinalities.shape[0], max_messages.shape[2]
+    unary = np.zeros((n_var, width))
+    sends = np.ones(n_var, dtype=np.bool_)
+    beliefs = np.zeros((n_var, width))
+    best = np.zeros(n_var, dtype=np.int64)
+    clipped = np.zeros(perceptions.shape[1])
+    work = scratch(n_var, targets.shape[0], width)
+    for i in range(perceptions.shape[0]):
+        for c in range(perceptions.shape[1]):
+            clipped[c] = min(max(perceptions[i, c], low), high)
+            unary[concept_variable[c], concept_state[c]] = clipped[c]
+        for j in range(verb_variables.shape[0]):
+            v = verb_variables[j]
+            if applied[i, j]:
+                unary[v, 0] = 1.0 - clipped[verb_concepts[j]]
+                sends[v] = True
+            else:
+                unary[v, 0] = 1.0
+                unary[v, 1] = 1.0
+                sends[v] = False
         for column in range(2):
-            out = marginals[i] if column == 0 else max_marginals[i]
-            start = sum_messages[i] if column == 0 else max_messages[i]
+            if not runs[column]:
+                iterations[i, column] = 0
+                converged[i, column] = True
+                if column == 0:
+                    for c in range(concept_variable.shape[0]):
+                        probabilities[i, c] = np.nan
+                continue
+            messages = sum_messages[i] if column == 0 else max_messages[i]
+            if cold[column]:
+                uniform_messages(cardinalities, targets, messages)
             steps, done = propagate(
-                unary[i], sends[i], graph, column == 1, damping[column], tolerance, max_iterations[column], out, start
+                unary,
+                sends,
+                graph,
+                column == 1,
+                damping[column],
+                tolerance,
+                max_iterations[column],
+                beliefs,
+                messages,
+                work,
             )
             iterations[i, column] = steps
             converged[i, column] = done
+            if column == 0:
+                for c in range(concept_variable.shape[0]):
+                    probabilities[i, c] = beliefs[concept_variable[c], concept_state[c]]
+            else:
+                for v in range(n_var):
+                    top = 0
+                    for s in range(1, width):
+                        if beliefs[v, s] > beliefs[v, top] or (
+                            np.isnan(beliefs[v, s]) and not np.isnan(beliefs[v, top])
+                        ):
+                            top = s
+                    best[v] = top
+                for c in range(concept_variable.shape[0]):
+                    map_configuration[i, c] = best[concept_variable[c]] == concept_state[c]

@@ -27,6 +27,7 @@ probability P(c), so the unary factor is P(c) clipped to
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -56,6 +57,8 @@ class WebInference:
     in the max-product configuration (per-variable argmax of the max-marginals,
     so exactly one noun and one adjective per pair). ``iterations`` is the larger
     of the two passes' iteration counts; ``converged`` is true when both converged.
+    Without the sum-product pass (``infer_many(…, marginals=False)``) ``probabilities``
+    is NaN and ``messages`` None, and the counts are the max-product pass's.
     """
 
     probabilities: np.ndarray
@@ -65,6 +68,9 @@ class WebInference:
     messages: np.ndarray | None = field(default=None, repr=False, compare=False)
     """The sum-product pass's final messages, (n_directed, K): a warm start for
     :meth:`ConceptWeb.infer_many`'s ``start``; None when not kept."""
+    max_messages: np.ndarray | None = field(default=None, repr=False, compare=False)
+    """The max-product pass's final messages, (n_directed, K): a warm start for
+    :meth:`ConceptWeb.infer_many`'s ``max_start``; None when not kept."""
 
 
 @dataclass(frozen=True)
@@ -115,43 +121,10 @@ class _MessageGraph:
             incoming=np.argsort(targets, kind="stable").astype(np.int64),
         )
 
-    def run(
-        self,
-        unary: np.ndarray,
-        sends: np.ndarray,
-        damping: float,
-        tolerance: float,
-        max_iterations: int,
-        start: np.ndarray | None = None,
-        sum_product: tuple[float, int] | None = None,
-    ) -> tuple[np.ndarray, ...]:
-        """Sum- and max-product LBP on (n_objects, n_var, K) unaries (parameters validated here).
-
-        ``sends[i, v]`` false makes variable v of object i a receiver only (see ``_lbp_kernels.propagate``).
-        ``start`` (n_objects, n_directed, K) is the sum-product pass's starting messages (copied);
-        None starts it from uniform messages, as the max-product pass always starts. ``sum_product``
-        is the sum-product pass's own (damping, max_iterations), by default those of both passes.
-        Returns marginals, max-marginals, iterations, converged and the sum-product pass's final messages.
-        """
-        damping = _checks.real(damping, "damping", low=0.0, high=1.0, high_open=True)
-        tolerance = _checks.real(tolerance, "tolerance", low=0.0, low_open=True)
-        max_iterations = _checks.count(max_iterations, "max_iterations", minimum=1)
-        sum_damping, sum_iterations = (damping, max_iterations) if sum_product is None else sum_product
-        sum_damping = _checks.real(sum_damping, "damping", low=0.0, high=1.0, high_open=True)
-        sum_iterations = _checks.count(sum_iterations, "max_iterations", minimum=1)
-        marginals, max_marginals = np.zeros_like(unary), np.zeros_like(unary)
-        iterations = np.zeros((unary.shape[0], 2), dtype=np.int64)
-        converged = np.zeros((unary.shape[0], 2), dtype=np.bool_)
-        shape = (unary.shape[0], len(self.sources), unary.shape[2])
-        max_messages = np.zeros(shape)
-        _lbp_kernels.uniform_messages(self.cardinalities, self.targets, max_messages)
-        if start is None:
-            sum_messages = max_messages.copy()
-        else:
-            sum_messages = np.array(start, dtype=np.float64, order="C")
-            if sum_messages.shape != shape:
-                raise InvalidInputError("start", f"expected messages of shape {shape}")
-        arrays = (
+    @property
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        """The ``graph`` tuple the kernels read."""
+        return (
             self.cardinalities,
             self.sources,
             self.targets,
@@ -160,21 +133,61 @@ class _MessageGraph:
             self.incoming_start,
             self.incoming,
         )
-        _lbp_kernels.propagate_many(
-            unary,
-            sends,
-            arrays,
-            np.array([sum_damping, damping]),
-            tolerance,
-            np.array([sum_iterations, max_iterations], dtype=np.int64),
-            marginals,
-            max_marginals,
-            iterations,
-            converged,
-            sum_messages,
-            max_messages,
-        )
-        return marginals, max_marginals, iterations, converged, sum_messages
+
+
+def _pass_settings(
+    damping: Any,
+    tolerance: Any,
+    max_iterations: Any,
+    sum_product: tuple[float, int] | None,
+    max_product: tuple[float, int] | None,
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """Validated (damping (2,), tolerance, max_iterations (2,)) of the sum- and max-product passes
+    (read-only arrays), memoised: a caller settles with the same few settings again and again."""
+    try:
+        own = [(None, None) if pair is None else tuple(pair) for pair in (sum_product, max_product)]
+        if any(len(pair) != 2 for pair in own):
+            raise TypeError
+        return _memoised_pass_settings(damping, tolerance, max_iterations, *own[0], *own[1])
+    except TypeError:  # not hashable, or not pairs: validated (and refused) below, uncached
+        return _validated_pass_settings(damping, tolerance, max_iterations, sum_product, max_product)
+
+
+@functools.lru_cache(maxsize=64, typed=True)
+def _memoised_pass_settings(
+    damping: Any,
+    tolerance: Any,
+    max_iterations: Any,
+    sum_damping: Any,
+    sum_iterations: Any,
+    max_damping: Any,
+    max_pass_iterations: Any,
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """``typed``: True is not taken for 1, nor 1.0 for 1, so a refused value is never found here."""
+    sum_product = None if sum_damping is None and sum_iterations is None else (sum_damping, sum_iterations)
+    max_product = None if max_damping is None and max_pass_iterations is None else (max_damping, max_pass_iterations)
+    return _validated_pass_settings(damping, tolerance, max_iterations, sum_product, max_product)
+
+
+def _validated_pass_settings(
+    damping: Any,
+    tolerance: Any,
+    max_iterations: Any,
+    sum_product: tuple[float, int] | None,
+    max_product: tuple[float, int] | None,
+) -> tuple[np.ndarray, float, np.ndarray]:
+    damping = _checks.real(damping, "damping", low=0.0, high=1.0, high_open=True)
+    tolerance = _checks.real(tolerance, "tolerance", low=0.0, low_open=True)
+    max_iterations = _checks.count(max_iterations, "max_iterations", minimum=1)
+    dampings, counts = [], []
+    for own in (sum_product, max_product):
+        pass_damping, pass_iterations = (damping, max_iterations) if own is None else own
+        dampings.append(_checks.real(pass_damping, "damping", low=0.0, high=1.0, high_open=True))
+        counts.append(_checks.count(pass_iterations, "max_iterations", minimum=1))
+    dampings_array, counts_array = np.array(dampings), np.array(counts, dtype=np.int64)
+    dampings_array.flags.writeable = False
+    counts_array.flags.writeable = False
+    return dampings_array, tolerance, counts_array
 
 
 def loopy_belief_propagation(
@@ -206,9 +219,20 @@ def loopy_belief_propagation(
     if (unary[valid_unary] <= 0).any() or (pairwise[valid_pairwise] <= 0).any():
         raise InvalidInputError("potentials", "factors must be strictly positive on every state")
     graph = _MessageGraph.build(cardinalities, edges, pairwise)
-    sends = np.ones((1, n_var), dtype=np.bool_)
-    marginals, max_marginals, iterations, converged, _ = graph.run(
-        unary[None], sends, damping, tolerance, max_iterations
+    dampings, tolerance, counts = _pass_settings(damping, tolerance, max_iterations, None, None)
+    marginals, max_marginals = np.zeros((1, n_var, width)), np.zeros((1, n_var, width))
+    iterations, converged = np.zeros((1, 2), dtype=np.int64), np.zeros((1, 2), dtype=np.bool_)
+    _lbp_kernels.propagate_many(
+        unary[None],
+        np.ones((1, n_var), dtype=np.bool_),
+        graph.arrays,
+        float(dampings[0]),
+        tolerance,
+        int(counts[0]),
+        marginals,
+        max_marginals,
+        iterations,
+        converged,
     )
     return marginals[0], max_marginals[0], int(iterations.max()), bool(converged.all())
 
@@ -245,6 +269,11 @@ class ConceptWeb:
         self._variable_edges = self._co_occurring_variables()
         self._pairwise = self._clique_factors()
         self._graph = _MessageGraph.build(self._cardinalities, self._variable_edges, self._pairwise)
+        self._kernel_graph = self._graph.arrays
+        self._kernel_layout = (self.concept_variable, self.concept_state, self._verb_variables, self._verb_concepts)
+        self._clip = (self.probability_floor, 1.0 - self.probability_floor)
+        self._uniform = np.zeros((len(self._graph.sources), self._width))
+        _lbp_kernels.uniform_messages(self._graph.cardinalities, self._graph.targets, self._uniform)
 
     @classmethod
     def fit(
@@ -356,6 +385,9 @@ class ConceptWeb:
         max_iterations: int = 100,
         start: Sequence[WebInference] | None = None,
         sum_product: tuple[float, int] | None = None,
+        max_start: Sequence[WebInference] | None = None,
+        max_product: tuple[float, int] | None = None,
+        marginals: bool = True,
     ) -> list[WebInference]:
         """:meth:`infer` for (n_objects, n_concepts) perceptions (and (n_objects, n_verbs) ``applied``) in one call.
 
@@ -363,28 +395,50 @@ class ConceptWeb:
         per object, whose final sum-product messages become the starting ones. On
         evidence close to the earlier one it settles in fewer iterations, to the same
         marginals within the tolerance's reach (docs/concept_web.md). The max-product
-        pass always starts from uniform messages: started elsewhere it can settle on
-        another of its fixed points, which changes the MAP configuration.
-        ``sum_product`` = (damping, max_iterations) of the sum-product pass when they
-        differ from the max-product pass's ``damping`` and ``max_iterations``.
+        pass starts from uniform messages unless ``max_start`` (one earlier inference
+        per object) gives its max-product messages (uniform for an inference that has
+        none): started elsewhere than uniform it can settle on another of its fixed
+        points, which changes the MAP configuration (docs/concept_web.md measures how
+        often). ``sum_product`` and ``max_product`` = (damping, max_iterations) of one
+        pass when they differ from ``damping`` and ``max_iterations``. ``marginals``
+        false skips the sum-product pass (``probabilities`` NaN, ``messages`` None)
+        for a caller that needs only the MAP configuration.
         """
         values, mask = self._check_perception(perceptions, applied, batched=True)
+        if not isinstance(marginals, bool):
+            raise InvalidInputError("marginals", f"expected a bool, got {marginals!r}")
         return self._infer(
-            values, mask, damping, tolerance, max_iterations, self._start_messages(start, len(values)), sum_product
+            values,
+            mask,
+            damping,
+            tolerance,
+            max_iterations,
+            self._start_messages(start, len(values), "start"),
+            sum_product,
+            self._start_messages(max_start, len(values), "max_start"),
+            max_product,
+            marginals,
         )
 
-    def _start_messages(self, start: Sequence[WebInference] | None, n_objects: int) -> np.ndarray | None:
+    def _start_messages(self, start: Sequence[WebInference] | None, n_objects: int, name: str) -> np.ndarray | None:
+        """Starting messages (a fresh array) from earlier inferences: their sum-product messages
+        (``start``, every one required) or their max-product ones (``max_start``, uniform where missing)."""
         if start is None:
             return None
-        shape = (len(self._graph.sources), self._width)
-        if len(start) != n_objects or not all(
-            isinstance(item, WebInference) and item.messages is not None and item.messages.shape == shape
-            for item in start
-        ):
-            raise InvalidInputError(
-                "start", f"expected one inference of this web per object ({n_objects}), with messages"
+        shape = self._uniform.shape
+        kept = [
+            item.messages if name == "start" else item.max_messages for item in start if isinstance(item, WebInference)
+        ]
+        if (
+            len(start) != n_objects
+            or len(kept) != n_objects
+            or not all(
+                (messages is None and name == "max_start") or (messages is not None and messages.shape == shape)
+                for messages in kept
             )
-        return np.stack([item.messages for item in start])  # type: ignore[misc]
+        ):
+            raise InvalidInputError(name, f"expected one inference of this web per object ({n_objects}), with messages")
+        return np.array([self._uniform if messages is None else messages for messages in kept])
 
     def _infer(
         self,
@@ -395,28 +449,75 @@ class ConceptWeb:
         max_iterations: int,
         start: np.ndarray | None = None,
         sum_product: tuple[float, int] | None = None,
+        max_start: np.ndarray | None = None,
+        max_product: tuple[float, int] | None = None,
+        marginals: bool = True,
     ) -> list[WebInference]:
-        marginals, max_marginals, iterations, converged, sum_messages = self._graph.run(
-            *self._evidence(perceptions, applied), damping, tolerance, max_iterations, start, sum_product
+        """Both passes for every object in one kernel call (``_lbp_kernels.settle_many``);
+        ``start`` and ``max_start`` are fresh arrays the kernel may overwrite."""
+        dampings, tolerance, counts = _pass_settings(damping, tolerance, max_iterations, sum_product, max_product)
+        n_objects, n_concepts = perceptions.shape
+        shape = (n_objects, *self._uniform.shape)
+        if not marginals:
+            sum_messages = np.empty((n_objects, 0, 0))
+        else:
+            sum_messages = np.zeros(shape) if start is None else start
+        max_messages = np.zeros(shape) if max_start is None else max_start
+        probabilities = np.empty((n_objects, n_concepts))
+        map_configuration = np.empty((n_objects, n_concepts), dtype=np.bool_)
+        iterations = np.empty((n_objects, 2), dtype=np.int64)
+        converged = np.empty((n_objects, 2), dtype=np.bool_)
+        _lbp_kernels.settle_many(
+            np.ascontiguousarray(perceptions),
+            np.ones((n_objects, len(self._verb_variables)), dtype=np.bool_)
+            if applied is None
+            else np.ascontiguousarray(applied),
+            self._kernel_layout,
+            self._clip,
+            self._kernel_graph,
+            np.array([marginals, True]),
+            np.array([start is None, max_start is None]),
+            dampings,
+            tolerance,
+            counts,
+            probabilities,
+            map_configuration,
+            iterations,
+            converged,
+            sum_messages,
+            max_messages,
         )
-        probabilities = marginals[:, self.concept_variable, self.concept_state]
-        map_configuration = np.argmax(max_marginals, axis=2)[:, self.concept_variable] == self.concept_state
+        steps, settled = iterations.max(axis=1).tolist(), converged.all(axis=1).tolist()
         return [
             WebInference(
                 probabilities[i],
                 map_configuration[i],
-                int(iterations[i].max()),
-                bool(converged[i].all()),
-                sum_messages[i],
+                steps[i],
+                settled[i],
+                sum_messages[i] if marginals else None,
+                max_messages[i],
             )
-            for i in range(len(probabilities))
+            for i in range(n_objects)
         ]
 
     def _check_perception(
         self, perception: Any, applied: Any, *, batched: bool
     ) -> tuple[np.ndarray, np.ndarray | None]:
         n_concepts, n_verbs = len(self.vocabulary.concepts), len(self.vocabulary.verbs)
-        if batched:
+        if (
+            batched
+            and type(perception) is np.ndarray
+            and perception.dtype == np.float64
+            and perception.ndim == 2
+            and perception.shape[1] == n_concepts
+            and perception.size
+            and 0.0 <= perception.min()
+            and perception.max() <= 1.0
+        ):
+            # The common case in two reductions (NaN fails both comparisons); anything else is
+            # checked in full below, which names the problem.
+            values = perception
+        elif batched:
             values = _checks.probabilities(perception, "perceptions", ("n_objects", n_concepts))
         else:
             values = _checks.probabilities(perception, "perception", (n_concepts,))[None]

@@ -45,7 +45,7 @@ from core.context.incremental import IncrementalLDA
 from core.errors import InvalidInputError
 from core.features.extract import recording_features
 from core.payloads import Audio, FingerSeries, Interaction, ObjectRecording, PointCloud
-from core.prototypes.perception import NO_EVIDENCE, perceive
+from core.prototypes.perception import NO_EVIDENCE, perceive_many
 from core.prototypes.prototypes import PrototypeSet
 from core.vocabulary import Vocabulary
 
@@ -61,7 +61,7 @@ class SettledWebs:
     evidence of an object named at the concept level is a function of its names,
     which a robot's scenes repeat: a hit returns the very inference a cold run
     would. Feature- and raw-level perceptions are continuous and not memoised.
-    Entries keep their sum-product messages (Eq. 6's first pass starts from them),
+    Entries keep their max-product messages (Eq. 6's first MAP pass starts from them),
     ≈ 16 KB each on the paper's web, so ``SETTLED_WEBS_CACHED`` bounds the memory
     per model (≈ 8 MB).
     Thread-safe: ``/infer`` analyses without the model's lock.
@@ -147,7 +147,7 @@ class _Evidence:
 
 def analyse_objects(perception: Perception, objects: Sequence[SceneObject], model_id: str) -> SceneAnalysis:
     """Perception, concept web and active concepts of every object of a scene."""
-    evidence = [_evidence(perception, obj, f"objects[{i}]", model_id) for i, obj in enumerate(objects)]
+    evidence = _scene_evidence(perception, objects, model_id)
     perceptions = np.stack([item.probabilities for item in evidence])
     applied = np.stack([item.applied for item in evidence])
     web = perception.concept_web
@@ -196,15 +196,25 @@ def _settle(
 
 
 def _frozen(inference: WebInference) -> WebInference:
-    """A read-only copy that holds only its own object's arrays (not the whole batch's)."""
-    arrays = [inference.probabilities, inference.map_configuration]
-    if inference.messages is not None:
-        arrays.append(inference.messages)
-    copies = [array.copy() for array in arrays]
-    for array in copies:
-        array.flags.writeable = False
-    messages = copies[2] if inference.messages is not None else None
-    return WebInference(copies[0], copies[1], inference.iterations, inference.converged, messages)
+    """A read-only copy that holds only its own object's arrays (not the whole batch's), with
+    the max-product messages Eq. 6's warm MAP passes start from (the sum-product ones are
+    not needed: the in-context settlings skip that pass, see :func:`in_context`)."""
+
+    def own(array: np.ndarray | None) -> np.ndarray | None:
+        if array is None:
+            return None
+        copy = array.copy()
+        copy.flags.writeable = False
+        return copy
+
+    return WebInference(
+        own(inference.probabilities),  # type: ignore[arg-type]
+        own(inference.map_configuration),  # type: ignore[arg-type]
+        inference.iterations,
+        inference.converged,
+        None,
+        own(inference.max_messages),
+    )
 
 
 def in_context(
@@ -226,6 +236,8 @@ def in_context(
         sigma=sigma,
         seed=seed,
         perceived=analysis.settled if analysis.settled_by is web else None,
+        marginals=False,  # the answer shows P* (Eq. 6), not the in-context webs' marginals
+        warm_map=True,  # agreement with the cold path measured in docs/feedback.md
     )
     concepts = perception.vocabulary.concepts
     objects = [
@@ -239,7 +251,36 @@ def _named(concepts: Sequence[str], values: np.ndarray) -> dict[str, float]:
     return dict(zip(concepts, values.tolist(), strict=True))
 
 
-def _evidence(perception: Perception, obj: SceneObject, field: str, model_id: str) -> _Evidence:
+@dataclass(frozen=True)
+class _Measured:
+    """A feature- or raw-level object's vectors, checked, waiting for the scene's one perception call."""
+
+    level: ObjectLevel
+    entity: np.ndarray
+    effects: dict[str, np.ndarray]
+
+
+def _scene_evidence(perception: Perception, objects: Sequence[SceneObject], model_id: str) -> list[_Evidence]:
+    """Every object's evidence: concept-level ones from their names, the measured ones (features,
+    raw) from the prototypes in one ``perceive_many`` call for the scene (Eq. 1 batched).
+    Every object is checked before any is perceived."""
+    items = [_observed(perception, obj, f"objects[{i}]", model_id) for i, obj in enumerate(objects)]
+    measured = {i: item for i, item in enumerate(items) if isinstance(item, _Measured)}
+    perceived: dict[int, _Evidence] = {}
+    if measured and perception.prototypes is not None:  # _observed refused measured objects without prototypes
+        with np.errstate(over="ignore", invalid="ignore"):  # extreme inputs are refused in _perceived
+            rows = perceive_many(
+                perception.prototypes,
+                [item.entity for item in measured.values()],
+                [item.effects for item in measured.values()],
+            )
+        for (i, item), row in zip(measured.items(), rows, strict=True):
+            perceived[i] = _perceived(perception.vocabulary, item, row, f"objects[{i}]")
+    return [perceived[i] if isinstance(item, _Measured) else item for i, item in enumerate(items)]
+
+
+def _observed(perception: Perception, obj: SceneObject, field: str, model_id: str) -> _Evidence | _Measured:
+    """A concept-level object's evidence, or a measured object's checked vectors."""
     vocabulary = perception.vocabulary
     if obj.concepts is not None:
         return _concept_evidence(vocabulary, obj.concepts)
@@ -256,13 +297,17 @@ def _evidence(perception: Perception, obj: SceneObject, field: str, model_id: st
         entity, effects = feature_vectors(obj.features)
     else:
         entity, effects = raw_feature_vectors(obj.raw, f"{field}.raw")
-    with np.errstate(over="ignore", invalid="ignore"):  # extreme inputs are refused just below
-        probabilities = perceive(perception.prototypes, entity, effects)
+    return _Measured(level, entity, effects)
+
+
+def _perceived(vocabulary: Vocabulary, measured: _Measured, probabilities: np.ndarray, field: str) -> _Evidence:
     if not np.isfinite(probabilities).all():
-        raise InvalidInput(f"{field}.{level}", "values too far from every prototype: the perception is not finite")
-    applied = np.array([verb in effects for verb in vocabulary.verbs], dtype=bool)
+        raise InvalidInput(
+            f"{field}.{measured.level}", "values too far from every prototype: the perception is not finite"
+        )
+    applied = np.array([verb in measured.effects for verb in vocabulary.verbs], dtype=bool)
     informed = np.concatenate([np.ones(len(vocabulary.nouns) + len(vocabulary.adjectives), dtype=bool), applied])
-    return _Evidence(level, probabilities, informed, applied, {})
+    return _Evidence(measured.level, probabilities, informed, applied, {})
 
 
 @dataclass(frozen=True)

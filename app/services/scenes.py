@@ -31,7 +31,7 @@ from core.context.incremental import SceneUpdate
 from storage.database import pipelined
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import scenes as scene_repository
-from storage.repositories.incremental_lda import SceneChanges
+from storage.repositories.incremental_lda import SceneChanges, reassigned_rows
 from storage.unit_of_work import after_commit
 
 
@@ -182,7 +182,7 @@ def _save_rows(
             first_token=first_token,
             token_words=update.word_ids.tolist(),
             token_contexts=update.assignments.tolist(),
-            reassigned=list(zip(update.reassigned_tokens.tolist(), update.reassigned_contexts.tolist(), strict=True)),
+            reassigned=reassigned_rows(update),
             counts=[tuple(row) for row in update.changed_counts.tolist()],
             new_words=[
                 (first_word + i, name, model.word_kinds[first_word + i])

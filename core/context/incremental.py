@@ -183,6 +183,10 @@ class SceneUpdate:
     """Earlier tokens whose context changed (rejuvenation, growth), as global token indices (int64)."""
     reassigned_contexts: np.ndarray
     """Their new contexts (int32)."""
+    reassigned_scenes: np.ndarray
+    """Their scenes (int32): with ``reassigned_words``, a store can write each moved token's whole row."""
+    reassigned_words: np.ndarray
+    """Their concept ids (int32)."""
     changed_counts: np.ndarray
     """One row (context, concept, new n_kw) per count entry that changed (int64, m × 3)."""
     contexts_before: int
@@ -350,6 +354,8 @@ class IncrementalLDA:
             assignments=assignments,
             reassigned_tokens=reassigned,
             reassigned_contexts=contexts,
+            reassigned_scenes=state.scene_of(reassigned),
+            reassigned_words=state.words[reassigned],
             changed_counts=changed_counts,
             contexts_before=contexts_before,
             contexts_after=state.n_contexts,

@@ -150,3 +150,40 @@ def test_reassign_then_restore_returns_the_same_counts() -> None:
     assert state.invariant_violations() == []
     state.reassign(tokens, saved)
     assert np.array_equal(state.n_wk, counts)
+
+
+def _add_scene_step_by_step(
+    state: LDAState, word_ids: np.ndarray, rng: np.random.Generator, sweeps: int, rejuvenation_tokens: int
+) -> tuple[int, np.ndarray, np.ndarray]:
+    """``add_scene_online`` spelled out with the public steps its docstring names, in its draw order."""
+    earlier = state.n_tokens
+    scene = state.append_document(word_ids)
+    state.scene_to_one_context(scene, rng)
+    per_sweep = rejuvenation_tokens if earlier else 0
+    rejuvenated = rng.integers(0, earlier, sweeps * per_sweep)
+    previous = state.assignments[rejuvenated].copy()
+    scene_tokens = np.arange(earlier, state.n_tokens)
+    for sweep in range(sweeps):
+        state.sample_tokens(np.concatenate([scene_tokens, rejuvenated[sweep * per_sweep : (sweep + 1) * per_sweep]]), rng)
+    return scene, rejuvenated, previous
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_online_scene_update_equals_its_steps_one_after_the_other(seed: int) -> None:
+    """The fused kernel of ``add_scene_online`` makes the same draws and the same moves as
+    appending, the block draw and the token sweeps done one by one (scenes 0 to 11 of a corpus
+    learned both ways, from an empty state, with and without rejuvenation)."""
+    rng = np.random.default_rng(seed)
+    scenes = [rng.integers(0, 9, size=rng.integers(1, 12)).astype(np.int32) for _ in range(12)]
+    for rejuvenation_tokens in (0, 5):
+        fused, stepped = LDAState(0.1, 0.1, 9, 3), LDAState(0.1, 0.1, 9, 3)
+        fused_rng, stepped_rng = np.random.default_rng(seed + 10), np.random.default_rng(seed + 10)
+        for word_ids in scenes:
+            got = fused.add_scene_online(word_ids, fused_rng, 3, rejuvenation_tokens)
+            expected = _add_scene_step_by_step(stepped, word_ids, stepped_rng, 3, rejuvenation_tokens)
+            assert got[0] == expected[0]
+            assert np.array_equal(got[1], expected[1]) and np.array_equal(got[2], expected[2])
+            assert np.array_equal(fused.assignments, stepped.assignments)
+            assert np.array_equal(fused.n_wk, stepped.n_wk) and np.array_equal(fused.n_dk, stepped.n_dk)
+        assert fused.invariant_violations() == []
+        assert fused_rng.random() == stepped_rng.random()  # the same number of draws

@@ -1,7 +1,8 @@
 """The app factory: ``create_app(settings)`` builds the FastAPI app; its lifespan owns the state.
 
 On start the lifespan creates the engine and the session makers, migrates the
-database to the latest schema, reloads every model into memory and binds the
+database to the latest schema, reloads every model into memory, warms up the
+numba kernels of a scene request (app/services/warmup.py) and binds the
 websocket hub to the event loop; on stop it closes the dashboards' sockets and
 disposes of the engine.
 """
@@ -25,6 +26,7 @@ from app.errors import InvalidInput, add_exception_handlers, error_responses
 from app.middleware import BodySizeLimit, memoise_route_metrics
 from app.registry import ModelRegistry
 from app.routers import contexts, health, models, plans, scenes, stream, training
+from app.services.warmup import warm_up_kernels
 from app.settings import Settings
 from app.state import AppState
 from app.stream import StreamHub
@@ -103,6 +105,7 @@ def _start(settings: Settings) -> AppState:
     )
     with read_sessions() as session:
         state.registry.load_all(session)
+    warm_up_kernels()  # before /readyz says ready: a first request must not wait for numba to compile
     state.models_loaded = True
     logger.info("%d model(s) loaded from %s", len(state.registry), engine.url.render_as_string())
     return state

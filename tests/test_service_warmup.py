@@ -1,0 +1,67 @@
+"""Start-up warm-up: once the server says it is ready, no scene request compiles a numba kernel."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PROJECT = Path(__file__).resolve().parents[1]
+
+# Run in a fresh interpreter: in the test process, earlier tests have compiled the kernels already.
+# Through the app's real start-up (TestClient runs the lifespan), then a model is trained and
+# fitted (that compiles the fit's own kernels), then a scene of every level is learned and one
+# is inferred; the script prints the kernels that gained a compiled signature during those.
+_SCRIPT = """
+import json, sys
+import numba
+from fastapi.testclient import TestClient
+from app.main import create_app
+from core.world import World
+import numpy as np
+from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, make_settings, synthetic_training_objects
+
+
+def compiled():
+    found = {}
+    for name, module in list(sys.modules.items()):
+        if name.startswith("core.") and module is not None:
+            for attribute, value in vars(module).items():
+                if isinstance(value, numba.core.dispatcher.Dispatcher):
+                    found[f"{name}.{attribute}"] = len(value.signatures)
+    return found
+
+
+world = World.paper(0)
+with TestClient(create_app(make_settings(sys.argv[1]))) as client:
+    model = client.post("/v1/models", json={"name": "w", "hyperparameters": FAST_HYPERPARAMETERS}).json()["id"]
+    objects = synthetic_training_objects(world, seed=3)
+    assert client.post(f"/v1/models/{model}/training-objects", json={"objects": objects}).status_code == 201
+    assert client.post(f"/v1/models/{model}/fit", json={}).status_code == 200
+    before = compiled()
+    sphere = np.random.default_rng(0).normal(size=(300, 3))
+    sphere = 0.04 * sphere / np.linalg.norm(sphere, axis=1, keepdims=True) + [0.0, 0.3, 0.04]
+    moved = {"before": {"points": sphere.tolist()}, "after": {"points": (sphere - [0.1, 0, 0]).tolist()}}
+    raw = {"look": {"points": sphere.tolist()}, "interactions": [{"behaviour": "move_left", **moved}]}
+    measured = [{"features": objects[0]["features"]}, {"features": objects[1]["features"]}, {"raw": raw}]
+    body = {"objects": concept_scenes(1, seed=5)[0]["objects"] + [{"concepts": {"cup": 0.7}}] + measured}
+    for _ in range(4):
+        assert client.post(f"/v1/models/{model}/scenes", json=body).status_code == 201
+    assert client.post(f"/v1/models/{model}/infer", json=body).status_code == 200
+    after = compiled()
+print(json.dumps({name: [before.get(name, 0), count] for name, count in after.items() if count != before.get(name, 0)}))
+"""
+
+
+@pytest.mark.slow
+def test_no_scene_request_compiles_a_kernel_after_start_up(tmp_path: Path) -> None:
+    database = f"sqlite:///{tmp_path / 'warm.sqlite3'}"
+    run = subprocess.run(
+        [sys.executable, "-c", _SCRIPT, database], cwd=PROJECT, capture_output=True, text=True, timeout=280
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    compiled_by_requests = json.loads(run.stdout.strip().splitlines()[-1])
+    assert compiled_by_requests == {}

@@ -15,24 +15,9 @@ from core.context.feedback import _FoldIn, _words, context_concepts, contextual_
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary
 from core.world import World
+from tests.paper_feedback import context_model, web, world  # noqa: F401 (fixtures)
 
 FIELDS = ("perception", "web", "in_context", "context_posterior", "context_concepts")
-
-
-@pytest.fixture(scope="module")
-def world() -> World:
-    return World.paper(seed=0)
-
-
-@pytest.fixture(scope="module")
-def web(world: World) -> ConceptWeb:
-    return ConceptWeb.fit(world.vocabulary, [[*obj.concepts, *obj.behaviours] for obj in world.train_objects])
-
-
-@pytest.fixture(scope="module")
-def context_model(world: World) -> IncrementalLDA:
-    scenes = world.scenes(50, seed=1, objects=world.train_objects)
-    return IncrementalLDA(seed=0).fit([scene.tokens(with_verbs=True) for scene in scenes])
 
 
 def named_scene(vocabulary: Vocabulary, objects: list) -> tuple[np.ndarray, np.ndarray]:

@@ -11,26 +11,9 @@ from core.context.feedback import context_concepts, contextual_feedback
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary
 from core.world import World, WorldObject
+from tests.paper_feedback import context_model, web, world  # noqa: F401 (fixtures)
 
 TRUTH = 0.8
-
-
-@pytest.fixture(scope="module")
-def world() -> World:
-    return World.paper(seed=0)
-
-
-@pytest.fixture(scope="module")
-def web(world: World) -> ConceptWeb:
-    return ConceptWeb.fit(world.vocabulary, [[*obj.concepts, *obj.behaviours] for obj in world.train_objects])
-
-
-@pytest.fixture(scope="module")
-def context_model(world: World) -> IncrementalLDA:
-    scenes = world.scenes(50, seed=1, objects=world.train_objects)
-    model = IncrementalLDA(seed=0).fit([scene.tokens(with_verbs=True) for scene in scenes])
-    assert model.n_contexts == 3
-    return model
 
 
 def perception_of(vocabulary: Vocabulary, obj: WorldObject) -> np.ndarray:

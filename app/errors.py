@@ -156,10 +156,24 @@ async def _invalid_input(_request: Request, exc: Exception) -> JSONResponse:
 
 async def _request_validation(_request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
-    errors = exc.errors()
+    errors = [_located(error) for error in exc.errors()]
     first = errors[0] if errors else {"loc": ("body",), "msg": "invalid request"}
     detail = "; ".join(f"{field_name(e['loc'])}: {e['msg']}" for e in errors[:5])
     return error_response(InvalidInput.error, detail, 422, field_name(first["loc"]))
+
+
+def _located(error: dict[str, Any]) -> dict[str, Any]:
+    """FastAPI locates a JSON syntax error at ``("body", <character offset>)``, which would read as
+    the field ``[17]``: the field is the body, and the offset and the parser's words go in the message.
+    A body FastAPI did not parse (no JSON content type) is validated as bytes: say what to send."""
+    if tuple(error.get("loc", ())) == ("body",) and isinstance(error.get("input"), bytes):
+        return {**error, "msg": "not read as JSON: send a JSON object with Content-Type: application/json"}
+    if error.get("type") != "json_invalid":
+        return error
+    position = next((part for part in error["loc"][1:] if isinstance(part, int)), None)
+    reason = (error.get("ctx") or {}).get("error", "")
+    where = f" at character {position}" if position is not None else ""
+    return {**error, "loc": ("body",), "msg": f"not valid JSON{where}" + (f" ({reason})" if reason else "")}
 
 
 async def _http_error(_request: Request, exc: Exception) -> JSONResponse:

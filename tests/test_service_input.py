@@ -60,6 +60,26 @@ def test_a_bad_scene_is_a_422_naming_the_field(client: TestClient, model_id: str
     assert response.json()["error"] == "invalid_input" and response.json()["detail"]
 
 
+@pytest.mark.parametrize(("text", "position"), [('{"objects": [{"concepts": ["cup"]', 33), ("{objects", 1)])
+def test_a_body_that_is_not_json_is_a_422_on_the_body_saying_where(
+    client: TestClient, model_id: str, text: str, position: int
+) -> None:
+    response = client.post(
+        f"/v1/models/{model_id}/scenes", content=text, headers={"Content-Type": "application/json"}
+    )
+    assert response.status_code == 422, response.text
+    assert response.json()["field"] == "body"
+    assert response.json()["detail"].startswith(f"body: not valid JSON at character {position} (")
+    assert client.get(f"/v1/models/{model_id}").json()["scene_count"] == 0
+
+
+def test_a_json_body_sent_as_text_is_a_422_saying_which_content_type(client: TestClient, model_id: str) -> None:
+    body = json.dumps({"objects": [{"concepts": ["cup"]}]})
+    response = client.post(f"/v1/models/{model_id}/scenes", content=body, headers={"Content-Type": "text/plain"})
+    assert response.status_code == 422, response.text
+    assert response.json()["field"] == "body" and "Content-Type: application/json" in response.json()["detail"]
+
+
 def test_nan_and_infinity_are_refused(client: TestClient, model_id: str) -> None:
     for literal in ("NaN", "Infinity", "-Infinity"):
         entity = ", ".join([literal] + ["0.0"] * 90)

@@ -105,7 +105,7 @@ def _start(settings: Settings) -> AppState:
     )
     with read_sessions() as session:
         state.registry.load_all(session)
+    logger.info("%d model(s) loaded from %s", len(state.registry), engine.url.render_as_string())
     warm_up_kernels()  # before /readyz says ready: a first request must not wait for numba to compile
     state.models_loaded = True
-    logger.info("%d model(s) loaded from %s", len(state.registry), engine.url.render_as_string())
     return state

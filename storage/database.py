@@ -96,11 +96,15 @@ class DriverStatements:
         if rows:
             self._run(statement, rows, many=True)
 
+    def fetchone(self, statement: str, parameters: Sequence[Any]) -> tuple[Any, ...] | None:
+        """The first row a query answers (values as the driver gives them), or None."""
+        return self._run(statement, parameters, many=False, fetch=True)
+
     def bind(self, column: Any) -> Callable[[Any], Any]:
         """SQLAlchemy's conversion of a value for ``column`` (a Column) on this dialect."""
         return _bind_processor(self.dialect, column.type)
 
-    def _run(self, statement: str, parameters: Any, *, many: bool) -> None:
+    def _run(self, statement: str, parameters: Any, *, many: bool, fetch: bool = False) -> Any:
         if not self._qmark:
             statement = statement.replace("?", "%s")
         cursor = self._driver.cursor()
@@ -109,6 +113,7 @@ class DriverStatements:
                 cursor.executemany(statement, parameters)
             else:
                 cursor.execute(statement, parameters)
+            return cursor.fetchone() if fetch else None
         except self.dialect.loaded_dbapi.Error as error:
             raise DBAPIError.instance(
                 statement, parameters, error, self.dialect.loaded_dbapi.Error, dialect=self.dialect

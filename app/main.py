@@ -2,7 +2,8 @@
 
 On start the lifespan creates the engine and the session makers, migrates the
 database to the latest schema, reloads every model into memory, warms up the
-numba kernels of a scene request (app/services/warmup.py) and binds the
+numba kernels of a scene request and freezes start-up's objects out of the
+garbage collector (app/services/warmup.py), and binds the
 websocket hub to the event loop; on stop it closes the dashboards' sockets and
 disposes of the engine.
 """
@@ -26,7 +27,7 @@ from app.errors import InvalidInput, add_exception_handlers, error_responses
 from app.middleware import BodySizeLimit, memoise_route_metrics
 from app.registry import ModelRegistry
 from app.routers import contexts, health, models, plans, scenes, stream, training
-from app.services.warmup import warm_up_kernels
+from app.services.warmup import freeze_start_up_objects, warm_up_kernels
 from app.settings import Settings
 from app.state import AppState
 from app.stream import StreamHub
@@ -107,5 +108,6 @@ def _start(settings: Settings) -> AppState:
         state.registry.load_all(session)
     logger.info("%d model(s) loaded from %s", len(state.registry), engine.url.render_as_string())
     warm_up_kernels()  # before /readyz says ready: a first request must not wait for numba to compile
+    freeze_start_up_objects()  # and must not stall on a full collection of start-up's objects
     state.models_loaded = True
     return state

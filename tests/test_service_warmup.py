@@ -1,4 +1,5 @@
-"""Start-up warm-up: once the server says it is ready, no scene request compiles a numba kernel."""
+"""Start-up preparation: once the server says it is ready, no scene request compiles a numba kernel,
+and start-up's objects are out of the garbage collector's collections."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ PROJECT = Path(__file__).resolve().parents[1]
 # fitted (that compiles the fit's own kernels), then a scene of every level is learned and one
 # is inferred; the script prints the kernels that gained a compiled signature during those.
 _SCRIPT = """
-import json, sys
+import gc, json, sys
 import numba
 from fastapi.testclient import TestClient
 from app.main import create_app
@@ -41,6 +42,8 @@ with TestClient(create_app(make_settings(sys.argv[1]))) as client:
     objects = synthetic_training_objects(world, seed=3)
     assert client.post(f"/v1/models/{model}/training-objects", json={"objects": objects}).status_code == 201
     assert client.post(f"/v1/models/{model}/fit", json={}).status_code == 200
+    frozen = gc.get_freeze_count()
+    numba_module_frozen = not any(o is numba for o in gc.get_objects())
     before = compiled()
     sphere = np.random.default_rng(0).normal(size=(300, 3))
     sphere = 0.04 * sphere / np.linalg.norm(sphere, axis=1, keepdims=True) + [0.0, 0.3, 0.04]
@@ -52,16 +55,18 @@ with TestClient(create_app(make_settings(sys.argv[1]))) as client:
         assert client.post(f"/v1/models/{model}/scenes", json=body).status_code == 201
     assert client.post(f"/v1/models/{model}/infer", json=body).status_code == 200
     after = compiled()
+print(json.dumps({"frozen": frozen, "numba_module_frozen": numba_module_frozen}))
 print(json.dumps({name: [before.get(name, 0), count] for name, count in after.items() if count != before.get(name, 0)}))
 """
 
 
 @pytest.mark.slow
-def test_no_scene_request_compiles_a_kernel_after_start_up(tmp_path: Path) -> None:
+def test_after_start_up_no_request_compiles_and_start_up_objects_are_frozen(tmp_path: Path) -> None:
     database = f"sqlite:///{tmp_path / 'warm.sqlite3'}"
     run = subprocess.run(
         [sys.executable, "-c", _SCRIPT, database], cwd=PROJECT, capture_output=True, text=True, timeout=280
     )
     assert run.returncode == 0, run.stderr[-3000:]
-    compiled_by_requests = json.loads(run.stdout.strip().splitlines()[-1])
+    *_, freeze, compiled_by_requests = (json.loads(line) for line in run.stdout.strip().splitlines())
     assert compiled_by_requests == {}
+    assert freeze["frozen"] > 0 and freeze["numba_module_frozen"]

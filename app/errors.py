@@ -178,6 +178,10 @@ def _located(error: dict[str, Any]) -> dict[str, Any]:
 
 async def _http_error(_request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, StarletteHTTPException)
+    cause = exc.__cause__
+    if isinstance(cause, UnicodeDecodeError):  # FastAPI's 400 "error parsing the body": bytes that are not UTF-8
+        detail = f"body: not valid JSON: byte {cause.start} is not UTF-8 (JSON text is UTF-8)"
+        return error_response(InvalidInput.error, detail, 422, "body")
     error = {404: "not_found", 405: "method_not_allowed", 413: PayloadTooLarge.error}.get(exc.status_code, "http_error")
     return error_response(error, str(exc.detail), exc.status_code, headers=getattr(exc, "headers", None))
 

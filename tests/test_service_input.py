@@ -73,6 +73,17 @@ def test_a_body_that_is_not_json_is_a_422_on_the_body_saying_where(
     assert client.get(f"/v1/models/{model_id}").json()["scene_count"] == 0
 
 
+def test_a_body_that_is_not_utf8_is_a_422_on_the_body(client: TestClient, model_id: str) -> None:
+    body = '{"objects": [{"concepts": ["caf\xe9"]}]}'.encode("latin-1")
+    response = client.post(f"/v1/models/{model_id}/scenes", content=body, headers={"Content-Type": "application/json"})
+    assert response.status_code == 422, response.text
+    assert response.json() == {
+        "error": "invalid_input",
+        "detail": "body: not valid JSON: byte 31 is not UTF-8 (JSON text is UTF-8)",
+        "field": "body",
+    }
+
+
 def test_a_json_body_sent_as_text_is_a_422_saying_which_content_type(client: TestClient, model_id: str) -> None:
     body = json.dumps({"objects": [{"concepts": ["cup"]}]})
     response = client.post(f"/v1/models/{model_id}/scenes", content=body, headers={"Content-Type": "text/plain"})

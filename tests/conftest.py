@@ -22,12 +22,22 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine, create_engine, text
 
 from app.main import create_app
+from app.services.warmup import warm_up_kernels
 from app.settings import Settings
 from core.features.layout import EFFECT_LAYOUT, EFFECT_SIZE, ENTITY_SIZE
 from core.world import World
 from storage.database import create_database_engine
 from storage.migrations import upgrade_to_head
 from storage.models import Base
+
+@pytest.fixture(scope="session", autouse=True)
+def _compiled_kernels_on_disk() -> None:
+    """numba's on-disk cache filled before any test starts a server process: with an empty cache
+    (a fresh clone, as in CI) the first server's start-up warm-up compiles for ≈ 35 s here, too
+    close to the start-up deadlines of the tests that start servers; once the cache is written,
+    their starts load it in a few seconds."""
+    warm_up_kernels()
+
 
 POSTGRES_SERVER_URL = os.environ.get("CONTEXTWEB_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432")
 POSTGRES_TEST_DATABASE = f"contextweb_test_{os.getpid()}"

@@ -110,7 +110,7 @@ def main() -> dict:
         "ours_p10_us": float(np.percentile(ours, 10)),
         "ours_p90_us": float(np.percentile(ours, 90)),
         "service_options_median_us": statistics.median(service),
-        "service_options_same_documents_share": float(
+        "service_options_same_active_concepts_share": float(
             np.mean([a.active_concepts == b.active_concepts for a, b in zip(results, service_results, strict=True)])
         ),
         "webs_once_median_us": web_median,
@@ -128,7 +128,7 @@ def main() -> dict:
     lines = {
         "feedback (5 objects)": f"{ours_median:10.1f} µs median (p10 {result['ours_p10_us']:.1f}, p90 {result['ours_p90_us']:.1f})",
         "service's options": f"{result['service_options_median_us']:10.1f} µs median (active concepts equal to the "
-        f"default's in {result['service_options_same_documents_share']:.0%} of these noisy scenes)",
+        f"default's in {result['service_options_same_active_concepts_share']:.0%} of these noisy scenes)",
         "5 webs settled once": f"{web_median:10.1f} µs median (ours / this: {result['ratio_ours_over_webs_once']:.2f})",
         "one fold-in": f"{result['fold_in_median_us']:10.1f} µs median",
         "passes": f"{result['iterations_mean']:10.2f} mean, {result['converged_share']:.0%} converged",

@@ -151,6 +151,20 @@ def pipelined(session: Session) -> Iterator[None]:
         yield
 
 
+@contextmanager
+def snapshot(sessions: sessionmaker[Session]) -> Iterator[Session]:
+    """A read-only session whose queries all see one consistent state of the database: PostgreSQL's
+    REPEATABLE READ (one snapshot for the whole transaction); on SQLite a WAL read transaction is
+    one snapshot from its first read on."""
+    with sessions() as session:
+        if session.get_bind().dialect.name == "postgresql":
+            session.connection(execution_options={"isolation_level": "REPEATABLE READ", "postgresql_readonly": True})
+        try:
+            yield session
+        finally:
+            session.rollback()
+
+
 def create_session_makers(engine: Engine) -> tuple[sessionmaker[Session], sessionmaker[Session]]:
     """(read sessions, write sessions); on SQLite the write ones take the write lock up front."""
     read = sessionmaker(bind=engine, expire_on_commit=False, autoflush=False)

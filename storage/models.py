@@ -14,7 +14,7 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy import JSON, BigInteger, DateTime, Float, ForeignKey, Integer, MetaData, String, Text, UniqueConstraint
+from sqlalchemy import JSON, BigInteger, DateTime, Float, ForeignKey, Index, Integer, MetaData, String, Text, UniqueConstraint
 from sqlalchemy.dialects.postgresql import JSONB
 from sqlalchemy.engine import Dialect
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
@@ -87,6 +87,8 @@ class IncrementalLdaState(Base):
     scene_count: Mapped[int] = mapped_column(Integer, default=0)
     context_count: Mapped[int] = mapped_column(Integer)
     state: Mapped[dict[str, Any]]
+    version: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
+    """How many writes the model has committed (scenes, training objects, fits, repairs)."""
     updated_at: Mapped[datetime] = mapped_column(default=utc_now, onupdate=utc_now)
 
 
@@ -130,12 +132,15 @@ class Token(Base):
     """
 
     __tablename__ = "token"
+    __table_args__ = (Index("ix_token_model_id_version", "model_id", "version"),)
 
     model_id: Mapped[str] = mapped_column(_model_fk(), primary_key=True)
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
     scene_id: Mapped[int] = mapped_column(Integer)
     word_id: Mapped[int] = mapped_column(Integer)
     context: Mapped[int] = mapped_column(Integer)
+    version: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
+    """The model version of the write that last inserted or reassigned the token."""
 
 
 class ContextWordCount(Base):
@@ -147,6 +152,8 @@ class ContextWordCount(Base):
     context: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
     word_id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
     count: Mapped[int] = mapped_column(Integer)
+    version: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
+    """The model version of the write that last changed the count."""
 
 
 class TrainingObject(Base):
@@ -162,3 +169,12 @@ class TrainingObject(Base):
     effects: Mapped[dict[str, Any]]
     verbs: Mapped[dict[str, Any]]
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+
+class StorageProbe(Base):
+    """One row per serving process, rewritten by the readiness probe to test that writes succeed."""
+
+    __tablename__ = "storage_probe"
+
+    id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    probed_at: Mapped[datetime] = mapped_column()

@@ -60,6 +60,7 @@ def _learn_and_store(engine: Engine, lda: IncrementalLDA, words: list[str]) -> i
                 new_words=[(first_word + i, name, None) for i, name in enumerate(update.vocabulary_additions)],
                 context_count=update.contexts_after,
                 state={"rng_state": update.rng_state},
+                version=update.scene_index + 1,
             ),
         )
     return len(update.reassigned_tokens)
@@ -120,12 +121,12 @@ def test_rewriting_moved_tokens_never_scans_the_models_tokens(postgres_url: str,
         _store_model(engine, IncrementalLDA(seed=5, **FAST))
         with engine.begin() as connection:
             connection.execute(
-                text("INSERT INTO token SELECT 'm', g, g / 20, g % 29, 0 FROM generate_series(0, 39999) AS g")
+                text("INSERT INTO token SELECT 'm', g, g / 20, g % 29, 0, 0 FROM generate_series(0, 39999) AS g")
             )
             moved = list(range(30_000, 39_000, 150))
             plan = connection.exec_driver_sql(
                 "EXPLAIN (FORMAT JSON) " + lda_repository._UPSERT_TOKENS.replace("?", "%s"),
-                ("m", moved, [t // 20 for t in moved], [t % 29 for t in moved], [1] * len(moved)),
+                ("m", 1, moved, [t // 20 for t in moved], [t % 29 for t in moved], [1] * len(moved)),
             ).scalar_one()
     finally:
         engine.dispose()

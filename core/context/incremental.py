@@ -585,6 +585,64 @@ class IncrementalLDA:
             raise InvalidInputError("state.rng_state", f"not a PCG64 generator state ({error})") from None
         return model
 
+    def catch_up(
+        self,
+        *,
+        new_words: Sequence[str],
+        n_contexts: int,
+        tokens: np.ndarray,
+        count_entries: np.ndarray,
+        scene_count: int,
+        rng_state: dict[str, Any],
+    ) -> None:
+        """Bring the model to a later stored state from what changed since it (docs/scaling.md).
+
+        ``tokens`` holds (id, scene, concept, context) rows of every token inserted or reassigned
+        since: earlier tokens move to their new context, new ones form whole new scenes;
+        ``count_entries`` the (context, concept, count) n_kw entries that changed, checked
+        against the counts the tokens give. Raises InvalidInputError (nothing proven, the caller
+        must reload) when the changes do not fit this model.
+        """
+        state = self._state
+        if n_contexts < state.n_contexts or n_contexts > self.hyperparameters.max_contexts:
+            raise InvalidInputError("state.n_contexts", f"{n_contexts} does not follow {state.n_contexts}")
+        tokens = np.asarray(tokens, dtype=np.int64).reshape(-1, 4)
+        self._add_concepts(list(new_words))
+        if tokens.size and (tokens[:, 2].max() >= state.vocab_size or tokens[:, 3].max() >= n_contexts):
+            raise InvalidInputError("state.tokens", "a changed token names an unknown concept or context")
+        while state.n_contexts < n_contexts:
+            state.add_context()
+        earlier = tokens[tokens[:, 0] < state.n_tokens]
+        if earlier.size:
+            if not np.array_equal(state.words[earlier[:, 0]], earlier[:, 2]):
+                raise InvalidInputError("state.tokens", "a reassigned token has another concept than in memory")
+            state.reassign(earlier[:, 0], earlier[:, 3].astype(np.int32))
+        added = tokens[tokens[:, 0] >= state.n_tokens]
+        if added.size:
+            expected_ids = np.arange(state.n_tokens, state.n_tokens + added.shape[0])
+            scenes, lengths = np.unique(added[:, 1], return_counts=True)
+            expected_scenes = np.arange(state.n_documents, state.n_documents + scenes.shape[0])
+            if not np.array_equal(added[:, 0], expected_ids) or not np.array_equal(scenes, expected_scenes):
+                raise InvalidInputError("state.tokens", "the new tokens do not form whole scenes after the last one")
+            if np.any(np.diff(added[:, 1]) < 0):
+                raise InvalidInputError("state.tokens", "the new tokens' scenes are out of order")
+            state.append_assigned_scenes(
+                added[:, 2].astype(np.int32), added[:, 3].astype(np.int32), lengths.astype(np.int32)
+            )
+        if state.n_documents != scene_count:
+            raise InvalidInputError("state.scene_count", f"{scene_count} stored, {state.n_documents} after catching up")
+        entries = np.asarray(count_entries, dtype=np.int64).reshape(-1, 3)
+        if entries.size:
+            inside = (entries[:, 0] < state.n_contexts) & (entries[:, 1] < state.vocab_size)
+            counts = np.zeros(entries.shape[0], dtype=np.int64)
+            counts[inside] = state.n_kw[entries[inside, 0], entries[inside, 1]]
+            if not np.array_equal(counts, entries[:, 2]):
+                raise InvalidInputError("state.n_kw", "differs from the counts of the stored assignments")
+        try:
+            self._rng.bit_generator.state = rng_state
+        except (TypeError, ValueError, KeyError) as error:
+            raise InvalidInputError("state.rng_state", f"not a PCG64 generator state ({error})") from None
+
     def check_invariants(self) -> None:
         """Raise AssertionError when the counts differ from those of the stored assignments."""
         problems = self._state.invariant_violations()

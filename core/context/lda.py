@@ -188,6 +188,30 @@ class LDAState:
         self.n_tokens = stop
         return self.n_documents - 1
 
+    def append_assigned_scenes(self, word_ids: np.ndarray, contexts: np.ndarray, scene_lengths: np.ndarray) -> None:
+        """Append whole scenes whose tokens are already assigned (a catch-up from storage), counts included.
+
+        ``word_ids`` and ``contexts`` hold the tokens of the new scenes one after the other,
+        ``scene_lengths`` how many tokens each scene has; contexts must be < ``n_contexts``.
+        """
+        start, stop = self.n_tokens, self.n_tokens + word_ids.shape[0]
+        first_doc, new_docs = self.n_documents, scene_lengths.shape[0]
+        self._words = _with_capacity(self._words, stop)
+        self._z = _with_capacity(self._z, stop)
+        self._token_scene = _with_capacity(self._token_scene, stop)
+        self._offsets = _with_capacity(self._offsets, first_doc + new_docs + 2)
+        self._n_dk = _with_capacity(self._n_dk, first_doc + new_docs + 1, self._n_dk.shape[1])
+        docs = np.repeat(np.arange(first_doc, first_doc + new_docs, dtype=np.int32), scene_lengths)
+        self._words[start:stop] = word_ids
+        self._z[start:stop] = contexts
+        self._token_scene[start:stop] = docs
+        self._offsets[first_doc + 1 : first_doc + new_docs + 1] = start + np.cumsum(scene_lengths)
+        self.n_documents += new_docs
+        self.n_tokens = stop
+        np.add.at(self._n_wk, (word_ids, contexts), 1)
+        np.add.at(self._n_k, contexts, 1)
+        np.add.at(self._n_dk, (docs, contexts), 1)
+
     def _reserve_scene(self, stop: int) -> None:
         """Room for one more scene whose tokens end at ``stop`` (each check is one comparison in
         the common case: this runs for every online update)."""

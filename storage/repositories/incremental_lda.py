@@ -33,6 +33,23 @@ class StoredCorpus:
     scene_count: int
     context_count: int
     state: dict[str, Any]
+    version: int
+
+
+@dataclass(frozen=True)
+class StoredChanges:
+    """What the writes after one version changed in a model's stored corpus (a catch-up)."""
+
+    version: int
+    scene_count: int
+    context_count: int
+    state: dict[str, Any]
+    new_words: list[tuple[str, str | None]]
+    """Words with ids >= the caller's vocabulary size, in id order: (name, kind)."""
+    tokens: np.ndarray
+    """(id, scene, word, context) rows of the tokens inserted or reassigned since, by id (int64)."""
+    count_entries: np.ndarray
+    """(context, word, count) rows of the n_kw entries changed since (int64)."""
 
 
 @dataclass(frozen=True)
@@ -49,6 +66,8 @@ class SceneChanges:
     new_words: Sequence[tuple[int, str, str | None]]
     context_count: int
     state: dict[str, Any]
+    version: int
+    """The model's version after this write: stamped on every row the scene writes."""
 
 
 def reassigned_rows(update: Any) -> list[tuple[int, int, int, int]]:
@@ -85,17 +104,20 @@ def save_scene(session: Session, model_id: str, changes: SceneChanges) -> None:
     if driver.dialect.name == "postgresql":
         _save_rows_as_arrays(driver, model_id, changes)
     else:
-        first, scene = changes.first_token, changes.scene_id
+        first, scene, version = changes.first_token, changes.scene_id, changes.version
         tokens = zip(changes.token_words, changes.token_contexts, strict=True)
-        driver.executemany(_INSERT_TOKEN, [(model_id, first + i, scene, w, k) for i, (w, k) in enumerate(tokens)])
-        driver.executemany(_UPSERT_TOKEN, [(model_id, *row) for row in changes.reassigned])
-        driver.executemany(_UPSERT_COUNT, [(model_id, k, w, n) for k, w, n in changes.counts])
+        driver.executemany(
+            _INSERT_TOKEN, [(model_id, first + i, scene, w, k, version) for i, (w, k) in enumerate(tokens)]
+        )
+        driver.executemany(_UPSERT_TOKEN, [(model_id, *row, version) for row in changes.reassigned])
+        driver.executemany(_UPSERT_COUNT, [(model_id, k, w, n, version) for k, w, n in changes.counts])
     driver.execute(
         _UPDATE_STATE,
         (
             changes.scene_id + 1,
             changes.context_count,
             driver.bind(_STATE_TABLE.c.state)(changes.state),
+            changes.version,
             driver.bind(_STATE_TABLE.c.updated_at)(utc_now()),
             model_id,
         ),
@@ -108,60 +130,62 @@ def save_scene(session: Session, model_id: str, changes: SceneChanges) -> None:
 # than the database takes to store them. ``?`` stands for the driver's placeholder;
 # JSON and time values get SQLAlchemy's own conversion for the column, and the
 # state row its ``updated_at`` (the ORM's ``onupdate``), so the rows read back as before.
-_INSERT_TOKEN = "INSERT INTO token (model_id, id, scene_id, word_id, context) VALUES (?, ?, ?, ?, ?)"
+_INSERT_TOKEN = "INSERT INTO token (model_id, id, scene_id, word_id, context, version) VALUES (?, ?, ?, ?, ?, ?)"
 # A reassigned token is written as its whole row, upserted on its primary key: on PostgreSQL an
 # UPDATE ... FROM unnest(...) is planned from the table's statistics, and with statistics older
 # than the model's growth it hash-joined every token of the model (≈ 9 ms at 40,000 tokens,
 # growing with the corpus); the arbiter index of ON CONFLICT is probed row by row whatever the
 # statistics say. The row's other values are the stored ones (the in-memory state's).
 _UPSERT_TOKEN = (
-    "INSERT INTO token (model_id, id, scene_id, word_id, context) VALUES (?, ?, ?, ?, ?) "
-    "ON CONFLICT (model_id, id) DO UPDATE SET context = excluded.context"
+    "INSERT INTO token (model_id, id, scene_id, word_id, context, version) VALUES (?, ?, ?, ?, ?, ?) "
+    "ON CONFLICT (model_id, id) DO UPDATE SET context = excluded.context, version = excluded.version"
 )
 _UPSERT_COUNT = (
-    "INSERT INTO context_word_count (model_id, context, word_id, count) VALUES (?, ?, ?, ?) "
-    "ON CONFLICT (model_id, context, word_id) DO UPDATE SET count = excluded.count"
+    "INSERT INTO context_word_count (model_id, context, word_id, count, version) VALUES (?, ?, ?, ?, ?) "
+    "ON CONFLICT (model_id, context, word_id) DO UPDATE SET count = excluded.count, version = excluded.version"
 )
 # PostgreSQL: one statement per table with the rows as arrays (``unnest``). psycopg's
 # executemany, even pipelined, costs ≈ 30 µs of Python per row, and a scene has ~100-250
 # rows (its tokens, the tokens its sweeps reassigned, the n_kw entries that moved).
 # Each array holds distinct keys, as ON CONFLICT ... DO UPDATE requires.
 _INSERT_TOKENS = (
-    "INSERT INTO token (model_id, id, scene_id, word_id, context) "
-    "SELECT ?, t.id, ?, t.word_id, t.context FROM unnest(?::integer[], ?::integer[], ?::integer[]) "
+    "INSERT INTO token (model_id, id, scene_id, word_id, context, version) "
+    "SELECT ?, t.id, ?, t.word_id, t.context, ? FROM unnest(?::integer[], ?::integer[], ?::integer[]) "
     "AS t(id, word_id, context)"
 )
 _UPSERT_TOKENS = (
-    "INSERT INTO token (model_id, id, scene_id, word_id, context) "
-    "SELECT ?, t.id, t.scene_id, t.word_id, t.context "
+    "INSERT INTO token (model_id, id, scene_id, word_id, context, version) "
+    "SELECT ?, t.id, t.scene_id, t.word_id, t.context, ? "
     "FROM unnest(?::integer[], ?::integer[], ?::integer[], ?::integer[]) AS t(id, scene_id, word_id, context) "
-    "ON CONFLICT (model_id, id) DO UPDATE SET context = excluded.context"
+    "ON CONFLICT (model_id, id) DO UPDATE SET context = excluded.context, version = excluded.version"
 )
 _UPSERT_COUNTS = (
-    "INSERT INTO context_word_count (model_id, context, word_id, count) "
-    "SELECT ?, c.context, c.word_id, c.count FROM unnest(?::integer[], ?::integer[], ?::integer[]) "
+    "INSERT INTO context_word_count (model_id, context, word_id, count, version) "
+    "SELECT ?, c.context, c.word_id, c.count, ? FROM unnest(?::integer[], ?::integer[], ?::integer[]) "
     "AS c(context, word_id, count) "
-    "ON CONFLICT (model_id, context, word_id) DO UPDATE SET count = excluded.count"
+    "ON CONFLICT (model_id, context, word_id) DO UPDATE SET count = excluded.count, version = excluded.version"
 )
 
 
 def _save_rows_as_arrays(driver: DriverStatements, model_id: str, changes: SceneChanges) -> None:
-    first, scene = changes.first_token, changes.scene_id
+    first, scene, version = changes.first_token, changes.scene_id, changes.version
     token_ids = list(range(first, first + len(changes.token_words)))
     driver.execute(
-        _INSERT_TOKENS, (model_id, scene, token_ids, list(changes.token_words), list(changes.token_contexts))
+        _INSERT_TOKENS,
+        (model_id, scene, version, token_ids, list(changes.token_words), list(changes.token_contexts)),
     )
     if changes.reassigned:
         tokens, scenes, words, contexts = zip(*changes.reassigned, strict=True)
-        driver.execute(_UPSERT_TOKENS, (model_id, list(tokens), list(scenes), list(words), list(contexts)))
+        driver.execute(_UPSERT_TOKENS, (model_id, version, list(tokens), list(scenes), list(words), list(contexts)))
     if changes.counts:
         contexts, words, counts = zip(*changes.counts, strict=True)
-        driver.execute(_UPSERT_COUNTS, (model_id, list(contexts), list(words), list(counts)))
+        driver.execute(_UPSERT_COUNTS, (model_id, version, list(contexts), list(words), list(counts)))
 
 
 _STATE_TABLE = IncrementalLdaState.__table__
 _UPDATE_STATE = (
-    "UPDATE incremental_lda_state SET scene_count = ?, context_count = ?, state = ?, updated_at = ? WHERE model_id = ?"
+    "UPDATE incremental_lda_state SET scene_count = ?, context_count = ?, state = ?, version = ?, updated_at = ? "
+    "WHERE model_id = ?"
 )
 
 
@@ -203,6 +227,7 @@ def load_corpus(session: Session, model_id: str) -> StoredCorpus:
         scene_count=state.scene_count,
         context_count=state.context_count,
         state=dict(state.state),
+        version=state.version,
     )
 
 
@@ -224,3 +249,75 @@ def stored_counts(session: Session, model_id: str) -> dict[tuple[int, int], int]
         )
     ).all()
     return {(k, w): n for k, w, n in rows}
+
+
+# Versions: every committed write to a model bumps its version (docs/scaling.md).
+
+
+def lock_version(session: Session, model_id: str) -> int | None:
+    """The model's stored version, with the model locked for this transaction's writes (None: no
+    such model). PostgreSQL locks the state row (``FOR UPDATE``, which waits for the lock and then
+    reads the row's newest version); SQLite's write transactions already hold the database's write
+    lock (``BEGIN IMMEDIATE``)."""
+    driver = DriverStatements(session)
+    statement = _SELECT_VERSION + (" FOR UPDATE" if driver.dialect.name == "postgresql" else "")
+    row = driver.fetchone(statement, (model_id,))
+    return None if row is None else int(row[0])
+
+
+def stored_version(session: Session, model_id: str) -> int | None:
+    """The model's stored version (one primary-key read), None when the model does not exist."""
+    row = DriverStatements(session).fetchone(_SELECT_VERSION, (model_id,))
+    return None if row is None else int(row[0])
+
+
+def stored_versions(session: Session) -> dict[str, int]:
+    """Every stored model's version, by id."""
+    rows = session.execute(select(IncrementalLdaState.model_id, IncrementalLdaState.version)).all()
+    return {model_id: int(version) for model_id, version in rows}
+
+
+def set_version(session: Session, model_id: str, version: int) -> None:
+    """Record a write that changed no corpus row (training objects, a fit, a repair)."""
+    DriverStatements(session).execute(_SET_VERSION, (version, model_id))
+
+
+_SELECT_VERSION = "SELECT version FROM incremental_lda_state WHERE model_id = ?"
+_SET_VERSION = "UPDATE incremental_lda_state SET version = ? WHERE model_id = ?"
+
+
+def load_changes(session: Session, model_id: str, *, since_version: int, word_count: int) -> StoredChanges | None:
+    """The rows written after ``since_version`` (None when the model is gone); read them in one
+    snapshot (:func:`storage.database.snapshot`) or under the model's write lock."""
+    state = session.execute(
+        select(
+            IncrementalLdaState.version,
+            IncrementalLdaState.scene_count,
+            IncrementalLdaState.context_count,
+            IncrementalLdaState.state,
+        ).where(IncrementalLdaState.model_id == model_id)
+    ).one_or_none()
+    if state is None:
+        return None
+    words = session.execute(
+        select(Word.name, Word.kind).where(Word.model_id == model_id, Word.id >= word_count).order_by(Word.id)
+    ).all()
+    tokens = session.execute(
+        select(Token.id, Token.scene_id, Token.word_id, Token.context)
+        .where(Token.model_id == model_id, Token.version > since_version)
+        .order_by(Token.id)
+    ).all()
+    counts = session.execute(
+        select(ContextWordCount.context, ContextWordCount.word_id, ContextWordCount.count).where(
+            ContextWordCount.model_id == model_id, ContextWordCount.version > since_version
+        )
+    ).all()
+    return StoredChanges(
+        version=int(state.version),
+        scene_count=int(state.scene_count),
+        context_count=int(state.context_count),
+        state=dict(state.state),
+        new_words=[(name, kind) for name, kind in words],
+        tokens=np.array(tokens, dtype=np.int64).reshape(-1, 4),
+        count_entries=np.array(counts, dtype=np.int64).reshape(-1, 3),
+    )

@@ -6,30 +6,46 @@ session dependencies use ``scope="function"``: they close *before* the response
 is sent, so an acknowledgement always follows a durable commit.
 
 A write to a model goes through :func:`model_write`, which holds the model's
-lock around the whole unit of work (in-memory update, flush, commit, then the
-events) so that the in-memory state and the database change together: if the
-commit fails, the model is reloaded from the database before the lock is
-released. It is a context manager the route opens around its one service
-call, not a dependency: a sync dependency with ``yield`` costs two extra hops
-to the thread pool (enter and exit), and the scene route is the hot path.
+lock in this process and in the database around the whole unit of work
+(catch-up, in-memory update, flush, commit, then the events) so that memory
+follows the database: if anything fails, the model is reloaded from the
+database or marked unavailable before the lock is released. It is a context
+manager the route opens around its one service call, not a dependency: a sync
+dependency with ``yield`` costs two extra hops to the thread pool (enter and
+exit), and the scene route is the hot path.
 """
 
 from __future__ import annotations
 
+import logging
 import secrets
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import Annotated
+
+import anyio
 
 from fastapi import Depends, Path, Security
 from fastapi.security import APIKeyHeader
 from sqlalchemy.orm import Session
 from starlette.requests import HTTPConnection
 
-from app.errors import Forbidden, ModelNotFound, Unauthorized
-from app.registry import ModelRuntime
+from app.errors import (
+    Forbidden,
+    ModelNotFound,
+    StorageUnavailable,
+    Unauthorized,
+    is_storage_failure,
+    storage_failure_reason,
+)
+from app.registry import ModelRuntime, catch_up
 from app.state import AppState
+from storage.repositories import feed as feed_repository
+from storage.repositories import incremental_lda as lda_repository
 from storage.unit_of_work import unit_of_work
+
+logger = logging.getLogger("contextweb")
 
 API_KEY_HEADER = "X-API-Key"
 _api_key = APIKeyHeader(
@@ -82,15 +98,23 @@ ModelId = Annotated[
 ]
 
 
-async def valid_model_id(model_id: ModelId, state: StateDep) -> ModelRuntime:
-    """The in-memory model ``model_id``, or a 404."""
+def current_model(model_id: ModelId, state: StateDep) -> ModelRuntime:
+    """The model ``model_id`` as stored now, for a read: 404 if it does not exist (on any process),
+    503 while it cannot serve. One primary-key read when memory is current (read-your-writes)."""
+    return state.registry.resolve(model_id)
+
+
+async def known_model(model_id: ModelId, state: StateDep) -> ModelRuntime:
+    """The model ``model_id`` for a write, without a database round trip when it is in memory: the
+    write itself checks the stored version under the model's lock (:func:`model_write`)."""
     model = state.registry.get(model_id)
     if model is None:
-        raise ModelNotFound(model_id)
+        return await anyio.to_thread.run_sync(state.registry.resolve, model_id)
     return model
 
 
-ModelDep = Annotated[ModelRuntime, Depends(valid_model_id)]
+ModelDep = Annotated[ModelRuntime, Depends(current_model)]
+WriteModelDep = Annotated[ModelRuntime, Depends(known_model)]
 
 
 def read_session(state: StateDep) -> Iterator[Session]:
@@ -108,19 +132,75 @@ ReadSessionDep = Annotated[Session, Depends(read_session, scope="function")]
 WriteSessionDep = Annotated[Session, Depends(write_session, scope="function")]
 
 
+@dataclass(eq=False)
+class ModelWrite:
+    """One write to a model: its transaction and the version the model has once it commits."""
+
+    session: Session
+    version: int
+    version_saved: bool = False
+    """Set by a service whose own statements stored :attr:`version` (a scene's state row)."""
+    unchanged: bool = False
+    """Set when the write changed nothing (an idempotent replay): no new version, no notification."""
+
+
 @contextmanager
-def model_write(state: AppState, model: ModelRuntime) -> Iterator[Session]:
-    """The unit of work of a write to ``model``: its lock, one transaction, memory reloaded on failure."""
+def model_write(state: AppState, model: ModelRuntime) -> Iterator[ModelWrite]:
+    """The unit of work of a write to ``model`` (docs/scaling.md). A service sets ``model.changing``
+    before it changes the model's memory ahead of the commit (a scene), so that a request refused
+    before that (a 422) costs no reload.
+
+    Under the model's lock in this process and its lock in the database (its state row, or
+    SQLite's write lock): the stored version is read; memory that is behind catches up from the
+    rows written since; the write runs; the version is bumped and the other processes notified;
+    then the commit. Memory follows the database: if anything fails once memory may hold the
+    write, the model is marked unavailable and reloaded from one snapshot (at once if the
+    database answers, else on a later request); a storage failure is a 503 ``storage_unavailable``.
+    """
     with model.lock:
         if model.deleted:
             raise ModelNotFound(model.id)
+        if model.unavailable is not None:
+            state.registry.reload(model)
         try:
             with unit_of_work(state.write_sessions) as session:
-                yield session
-        except BaseException:
+                stored = lda_repository.lock_version(session, model.id)
+                if stored is None:
+                    state.registry.forget(model)
+                    raise ModelNotFound(model.id)
+                if stored != model.version:
+                    model.changing = True  # until the catch-up completes, memory is unproven
+                    catch_up(session, model)
+                    model.changing = False
+                write = ModelWrite(session, stored + 1)
+                yield write
+                if not write.unchanged:
+                    if not write.version_saved:
+                        lda_repository.set_version(session, model.id, write.version)
+                    feed_repository.notify_change(session, model.id)
+            if not write.unchanged:
+                model.version = write.version
+            state.storage.record_success()
+        except BaseException as error:
+            if is_storage_failure(error):
+                state.storage.record_failure(storage_failure_reason(error))
             if model.changing:
-                with state.read_sessions() as session:
-                    state.registry.reload(session, model)
+                _restore(state, model, error)
+            if is_storage_failure(error):
+                raise StorageUnavailable(storage_failure_reason(error)) from error
             raise
         finally:
             model.changing = False
+
+
+def _restore(state: AppState, model: ModelRuntime, error: BaseException) -> None:
+    """Memory may hold a write the database does not: reload it now, or leave it unavailable."""
+    model.changing = False
+    if model.deleted:
+        return
+    model.mark_unavailable(f"a write failed ({type(error).__name__}) and its model is being reloaded")
+    model.reload_after = 0.0
+    try:
+        state.registry.reload(model)
+    except Exception:  # noqa: BLE001 - the model stays unavailable; a later request reloads it
+        logger.warning("model %s stays unavailable until the database answers: %s", model.id, model.unavailable)

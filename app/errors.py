@@ -4,7 +4,10 @@ Routes raise :class:`ContextwebError` subclasses (and declare them in
 ``responses=`` so the OpenAPI schema shows them); core's
 :class:`~core.errors.InvalidInputError`, pydantic's request validation errors and
 Starlette's routing errors are rendered in the same shape. There is deliberately
-no catch-all: an unexpected exception stays a visible 500 and a logged traceback.
+no catch-all: an unexpected exception stays a visible 500 and a logged traceback. Database
+failures are not unexpected in the field (a lost connection, a full disk, an I/O
+error, a lock timeout): each such failure (:func:`is_storage_failure`) that reaches a
+route is a 503 ``storage_unavailable`` with ``Retry-After``.
 """
 
 from __future__ import annotations
@@ -14,6 +17,16 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import (
+    DBAPIError,
+    DisconnectionError,
+    InterfaceError,
+    InternalError,
+    OperationalError,
+    PendingRollbackError,
+    SQLAlchemyError,
+)
+from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from app.schemas.common import UNION_TAGS, ErrorRead
@@ -105,6 +118,37 @@ class PayloadTooLarge(ContextwebError):
         super().__init__(f"the request body exceeds {limit} bytes (CONTEXTWEB_MAX_BODY_BYTES)", field="body")
 
 
+class ServiceUnavailable(ContextwebError):
+    """A 503 the client should retry after ``retry_after`` seconds (the bridge retries every 5xx)."""
+
+    status_code = 503
+
+    def __init__(self, message: str, retry_after: int) -> None:
+        super().__init__(message)
+        self.retry_after = retry_after
+
+    def headers(self) -> dict[str, str]:
+        return {"Retry-After": str(self.retry_after)}
+
+
+class StorageUnavailable(ServiceUnavailable):
+    """The database could not take the request: lost connection, full disk, I/O error, lock timeout."""
+
+    error = "storage_unavailable"
+
+    def __init__(self, reason: str, retry_after: int = 1) -> None:
+        super().__init__(f"storage unavailable: {reason}; nothing was changed, retry later", retry_after)
+
+
+class ModelUnavailable(ServiceUnavailable):
+    """The model's memory could not be proven equal to the database: it is reloaded before it serves again."""
+
+    error = "model_unavailable"
+
+    def __init__(self, model_id: str, reason: str, retry_after: int = 1) -> None:
+        super().__init__(f"model {model_id!r} is unavailable: {reason}", retry_after)
+
+
 class NotReady(ContextwebError):
     error = "not_ready"
     status_code = 503
@@ -176,6 +220,41 @@ def _located(error: dict[str, Any]) -> dict[str, Any]:
     return {**error, "loc": ("body",), "msg": f"not valid JSON{where}" + (f" ({reason})" if reason else "")}
 
 
+#: Database failures of the field: the driver's operational errors (lost connection, refused
+#: connection, full disk, I/O error, lock timeout, read-only file), the pool's time-out and an
+#: aborted transaction. A ProgrammingError or DataError is a bug and stays a 500.
+STORAGE_FAILURES: tuple[type[BaseException], ...] = (
+    OperationalError,
+    InterfaceError,
+    InternalError,
+    PoolTimeoutError,
+    DisconnectionError,
+    PendingRollbackError,
+)
+
+
+def is_storage_failure(exc: BaseException) -> bool:
+    return isinstance(exc, STORAGE_FAILURES) or (
+        isinstance(exc, DBAPIError) and bool(getattr(exc, "connection_invalidated", False))
+    )
+
+
+async def _storage_error(_request: Request, exc: Exception) -> JSONResponse:
+    """A database failure that reached a route: a 503 to retry, never a bare 500 (app/deps.py has
+    already made sure no memory leads the database)."""
+    if not is_storage_failure(exc):
+        raise exc
+    error = StorageUnavailable(storage_failure_reason(exc))
+    return error_response(error.error, error.message, error.status_code, headers=error.headers())
+
+
+def storage_failure_reason(exc: BaseException) -> str:
+    """A short, key-free description of a database failure (the driver's first line)."""
+    original = getattr(exc, "orig", None) or exc
+    first_line = (str(original).strip().splitlines() or [""])[0][:200]
+    return f"{type(original).__name__}: {first_line}" if first_line else type(original).__name__
+
+
 async def _http_error(_request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, StarletteHTTPException)
     cause = exc.__cause__
@@ -191,3 +270,4 @@ def add_exception_handlers(app: FastAPI) -> None:
     app.add_exception_handler(InvalidInputError, _invalid_input)
     app.add_exception_handler(RequestValidationError, _request_validation)
     app.add_exception_handler(StarletteHTTPException, _http_error)
+    app.add_exception_handler(SQLAlchemyError, _storage_error)

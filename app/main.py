@@ -23,7 +23,8 @@ from fastapi.staticfiles import StaticFiles
 from prometheus_client import CollectorRegistry
 from prometheus_fastapi_instrumentator import Instrumentator
 
-from app.errors import InvalidInput, add_exception_handlers, error_responses
+from app.errors import InvalidInput, ModelUnavailable, StorageUnavailable, add_exception_handlers, error_responses
+from app.feed import SceneFeed
 from app.middleware import BodySizeLimit, memoise_route_metrics
 from app.registry import ModelRegistry
 from app.routers import contexts, health, models, plans, scenes, stream, training
@@ -60,9 +61,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         anyio.to_thread.current_default_thread_limiter().total_tokens = settings.worker_threads
         state = await anyio.to_thread.run_sync(_start, settings)
         state.hub.bind(asyncio.get_running_loop())
+        feed = _app.state.scene_feed = SceneFeed(state.hub, state.engine, state.read_sessions)
+        feed.start()
         try:
             yield {"contextweb": state}
         finally:
+            await anyio.to_thread.run_sync(feed.stop)
             state.hub.close_everyone("server shutting down")
             state.engine.dispose()
 
@@ -76,7 +80,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
     app.include_router(health.router)
     for router in (models.router, training.router, scenes.router, contexts.router, plans.router):
-        app.include_router(router, responses=error_responses(InvalidInput))
+        app.include_router(router, responses=error_responses(InvalidInput, StorageUnavailable, ModelUnavailable))
     app.include_router(stream.router)
     Instrumentator(registry=CollectorRegistry(), excluded_handlers=["/metrics"]).instrument(app).expose(
         app, endpoint="/metrics", tags=["health"], summary="Prometheus metrics"
@@ -101,7 +105,7 @@ def _start(settings: Settings) -> AppState:
         engine=engine,
         read_sessions=read_sessions,
         write_sessions=write_sessions,
-        registry=ModelRegistry(),
+        registry=ModelRegistry(read_sessions),
         hub=StreamHub(settings.stream_queue_size),
     )
     with read_sessions() as session:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 from typing import Any
 
 from app.settings import LOOPBACK_HOSTS, Settings
@@ -17,6 +18,12 @@ def add_serve_arguments(serve: argparse.ArgumentParser) -> None:
     serve.add_argument("--host", help="interface to bind (default CONTEXTWEB_HOST or 127.0.0.1)")
     serve.add_argument("--port", type=int, help="port to listen on (default CONTEXTWEB_PORT or 8000)")
     serve.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
+    serve.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="worker processes sharing the port; they coordinate through the database (docs/scaling.md)",
+    )
 
 
 def run_migrate(_args: argparse.Namespace) -> int:
@@ -47,5 +54,20 @@ def run_serve(args: argparse.Namespace) -> int:
             host,
             moved,
         )
-    uvicorn.run(create_app(settings), host=host, port=settings.port, log_level=args.log_level, access_log=False)
+    if args.workers < 1:
+        raise SystemExit("contextweb serve: --workers must be at least 1")
+    if args.workers == 1:
+        uvicorn.run(create_app(settings), host=host, port=settings.port, log_level=args.log_level, access_log=False)
+        return 0
+    # Each worker builds its own app from the environment (uvicorn imports the factory by name).
+    os.environ.update({f"CONTEXTWEB_{name.upper()}": str(value) for name, value in overrides.items()})
+    uvicorn.run(
+        "app.main:create_app",
+        factory=True,
+        workers=args.workers,
+        host=host,
+        port=settings.port,
+        log_level=args.log_level,
+        access_log=False,
+    )
     return 0

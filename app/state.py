@@ -9,6 +9,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.registry import ModelRegistry
 from app.settings import Settings
+from app.storage_health import StorageHealth
 from app.stream import StreamHub
 
 
@@ -22,4 +23,5 @@ class AppState:
     write_sessions: sessionmaker[Session]
     registry: ModelRegistry
     hub: StreamHub
+    storage: StorageHealth = field(default_factory=StorageHealth)
     models_loaded: bool = field(default=False)

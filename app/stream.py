@@ -1,21 +1,29 @@
 """The websocket hub: events of each model fanned out to its dashboards (docs/stream.md).
 
-Services publish from worker threads after their transaction committed;
-:meth:`StreamHub.publish` hands the event to the event loop, which puts it in
+Events come from the scene feed (app/feed.py), which reads them from the
+database on a thread and hands them to the event loop; there they are put in
 every subscriber's bounded queue. A subscriber whose queue is full is dropped:
 its queue is replaced by a single close instruction, so one slow dashboard
 never holds memory or slows the robots down.
+
+A subscriber gets ``scene`` events with consecutive ids from the position it
+subscribed at (the hello's ``scene_count``), each once: a scene event out of
+that sequence, and the ``context_discovered`` event of a scene it did not get,
+are not queued for it.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 #: Close codes (docs/stream.md). 4000 + the HTTP status for refusals, RFC 6455 codes otherwise.
 CLOSE_NORMAL = 1000
 CLOSE_GOING_AWAY = 1001
+CLOSE_INTERNAL_ERROR = 1011
 CLOSE_TOO_SLOW = 1013
 CLOSE_UNAUTHORIZED = 4401
 CLOSE_FORBIDDEN = 4403
@@ -30,14 +38,39 @@ class CloseInstruction:
 
 @dataclass(eq=False)
 class Subscriber:
-    """One connected dashboard: its model and its bounded queue of events."""
+    """One connected dashboard: its model, its bounded queue of events and its place in the scenes."""
 
     model_id: str
     queue: asyncio.Queue[dict[str, Any] | CloseInstruction] = field(repr=False)
+    next_scene_id: int | None = None
+    """The id of the next ``scene`` event it takes (None: it takes every event as published)."""
+    last_scene_id: int | None = None
+    """The id of the last ``scene`` event it took."""
+    discovered_scene_id: int | None = None
+    """The scene of the last ``context_discovered`` event it took."""
+
+    def takes(self, event: dict[str, Any]) -> bool:
+        """Whether ``event`` is next for this subscriber (and if so, count it as taken)."""
+        if self.next_scene_id is None:
+            return True
+        kind = event.get("type")
+        if kind == "scene":
+            if event["scene_id"] != self.next_scene_id:
+                return False
+            self.last_scene_id = self.next_scene_id
+            self.next_scene_id += 1
+        elif kind == "context_discovered":
+            if event["scene_id"] != self.last_scene_id or event["scene_id"] == self.discovered_scene_id:
+                return False
+            self.discovered_scene_id = event["scene_id"]
+        return True
 
 
 class StreamHub:
-    """Per-model fan-out of events to websocket subscribers, with bounded queues."""
+    """Per-model fan-out of events to websocket subscribers, with bounded queues.
+
+    Methods ending in ``_now`` run on the event loop; the others are safe from any thread.
+    """
 
     def __init__(self, queue_size: int) -> None:
         self.queue_size = queue_size
@@ -48,8 +81,9 @@ class StreamHub:
         """Deliver on ``loop`` (the server's event loop); called by the lifespan."""
         self._loop = loop
 
-    def subscribe(self, model_id: str) -> Subscriber:
-        subscriber = Subscriber(model_id, asyncio.Queue(maxsize=self.queue_size))
+    def subscribe(self, model_id: str, next_scene_id: int | None = None) -> Subscriber:
+        """A new subscriber of ``model_id`` whose first scene event will be ``next_scene_id``; on the loop."""
+        subscriber = Subscriber(model_id, asyncio.Queue(maxsize=self.queue_size), next_scene_id)
         self._subscribers.setdefault(model_id, set()).add(subscriber)
         return subscriber
 
@@ -63,32 +97,40 @@ class StreamHub:
     def subscriber_count(self, model_id: str) -> int:
         return len(self._subscribers.get(model_id, ()))
 
-    def publish(self, model_id: str, event: dict[str, Any]) -> None:
-        """Queue ``event`` for every subscriber of ``model_id``; safe from any thread."""
-        if self._loop is None or model_id not in self._subscribers:
+    def call_soon(self, callback: Callable[..., None], *args: Any) -> None:
+        """Run ``callback(*args)`` on the event loop, in call order; nothing once the loop is gone."""
+        if self._loop is None:
             return
-        self._loop.call_soon_threadsafe(self._deliver, model_id, event)
+        with contextlib.suppress(RuntimeError):  # the loop is closed: the server is shutting down
+            self._loop.call_soon_threadsafe(callback, *args)
+
+    def publish(self, model_id: str, event: dict[str, Any]) -> None:
+        """Queue ``event`` for every subscriber of ``model_id``."""
+        if model_id in self._subscribers:
+            self.call_soon(self.deliver_now, model_id, event)
 
     def close_model(self, model_id: str, code: int, reason: str) -> None:
-        """Close every subscriber of ``model_id`` (the model was deleted); safe from any thread."""
-        if self._loop is not None:
-            self._loop.call_soon_threadsafe(self._close_all, model_id, CloseInstruction(code, reason))
+        """Close every subscriber of ``model_id`` (the model was deleted)."""
+        self.call_soon(self.close_model_now, model_id, code, reason)
 
-    def close_everyone(self, reason: str) -> None:
-        """Close every subscriber (shutdown); called on the event loop."""
-        for model_id in list(self._subscribers):
-            self._close_all(model_id, CloseInstruction(CLOSE_GOING_AWAY, reason))
-
-    def _deliver(self, model_id: str, event: dict[str, Any]) -> None:
+    def deliver_now(self, model_id: str, event: dict[str, Any]) -> None:
+        """Queue ``event`` for every subscriber of ``model_id`` it is next for; drop the ones whose queue is full."""
         for subscriber in list(self._subscribers.get(model_id, ())):
+            if not subscriber.takes(event):
+                continue
             try:
                 subscriber.queue.put_nowait(event)
             except asyncio.QueueFull:
                 self._drop(subscriber, CloseInstruction(CLOSE_TOO_SLOW, "client too slow: event queue full"))
 
-    def _close_all(self, model_id: str, instruction: CloseInstruction) -> None:
+    def close_model_now(self, model_id: str, code: int, reason: str) -> None:
         for subscriber in list(self._subscribers.get(model_id, ())):
-            self._drop(subscriber, instruction)
+            self._drop(subscriber, CloseInstruction(code, reason))
+
+    def close_everyone(self, reason: str) -> None:
+        """Close every subscriber (shutdown); called on the event loop."""
+        for model_id in list(self._subscribers):
+            self.close_model_now(model_id, CLOSE_GOING_AWAY, reason)
 
     def _drop(self, subscriber: Subscriber, instruction: CloseInstruction) -> None:
         """Forget the queued events and leave only the close instruction."""

@@ -61,3 +61,26 @@ def test_a_client_whose_queue_overflows_is_dropped_and_the_others_are_not() -> N
     slow_events, received = asyncio.run(scenario())
     assert slow_events == [CloseInstruction(CLOSE_TOO_SLOW, "client too slow: event queue full")]
     assert received == [{"n": n} for n in range(5)]
+
+
+def test_a_subscriber_takes_each_scene_once_from_its_position() -> None:
+    async def scenario() -> list:
+        hub = StreamHub(queue_size=16)
+        hub.bind(asyncio.get_running_loop())
+        subscriber = hub.subscribe("m", next_scene_id=5)
+        for scene_id in (4, 5, 5, 7, 6, 6, 7):
+            hub.deliver_now("m", {"type": "scene", "scene_id": scene_id})
+            hub.deliver_now("m", {"type": "context_discovered", "scene_id": scene_id})
+        hub.deliver_now("m", {"type": "model_fitted"})
+        return [subscriber.queue.get_nowait() for _ in range(subscriber.queue.qsize())]
+
+    taken = [(event["type"], event.get("scene_id")) for event in asyncio.run(scenario())]
+    assert taken == [
+        ("scene", 5),
+        ("context_discovered", 5),
+        ("scene", 6),
+        ("context_discovered", 6),
+        ("scene", 7),
+        ("context_discovered", 7),
+        ("model_fitted", None),
+    ]

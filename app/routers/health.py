@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from app.deps import ReadSessionDep, StateDep
+from app.deps import StateDep
 from app.errors import NotReady, error_responses
 from app.schemas.health import HealthRead, ReadinessRead
 from app.services import health as health_service
@@ -17,6 +17,10 @@ async def healthz() -> HealthRead:
     return HealthRead(status="ok")
 
 
-@router.get("/readyz", summary="Readiness: database reachable and models loaded", responses=error_responses(NotReady))
-def readyz(session: ReadSessionDep, state: StateDep) -> ReadinessRead:
-    return health_service.readiness(session, state)
+@router.get(
+    "/readyz",
+    summary="Readiness: models loaded, database reachable and taking writes",
+    responses=error_responses(NotReady),
+)
+def readyz(state: StateDep) -> ReadinessRead:
+    return health_service.readiness(state)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, status
 
-from app.deps import ModelDep, ReadAccess, StateDep, WriteAccess, WriteSessionDep, model_write
+from app.deps import ModelDep, ReadAccess, StateDep, WriteAccess, WriteModelDep, WriteSessionDep, model_write
 from app.errors import Forbidden, InvalidInput, ModelNotFound, Unauthorized, error_responses
 from app.schemas.models import ModelCreate, ModelRead
 from app.services import models as model_service
@@ -25,8 +25,8 @@ def create_model(body: ModelCreate, session: WriteSessionDep, state: StateDep) -
 
 
 @router.get("", summary="List the models", dependencies=[ReadAccess], responses=error_responses(Unauthorized))
-async def list_models(state: StateDep) -> list[ModelRead]:
-    return [model_service.model_read(model) for model in state.registry.all()]
+def list_models(state: StateDep) -> list[ModelRead]:
+    return [model_service.model_read(model) for model in state.registry.synchronise()]
 
 
 @router.get(
@@ -46,6 +46,6 @@ async def get_model(model: ModelDep) -> ModelRead:
     dependencies=[WriteAccess],
     responses=error_responses(ModelNotFound, *_AUTH),
 )
-def delete_model(model: ModelDep, state: StateDep) -> None:
-    with model_write(state, model) as session:
-        model_service.delete_model(session, state.registry, state.hub, model)
+def delete_model(model: WriteModelDep, state: StateDep) -> None:
+    with model_write(state, model) as write:
+        model_service.delete_model(write.session, state.registry, state.hub, model)

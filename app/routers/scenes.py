@@ -6,7 +6,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Header, Path, Query, Response, status
 
-from app.deps import ModelDep, ReadAccess, ReadSessionDep, StateDep, WriteAccess, model_write
+from app.deps import ModelDep, ReadAccess, ReadSessionDep, StateDep, WriteAccess, WriteModelDep, model_write
 from app.errors import (
     Forbidden,
     IdempotencyKeyReused,
@@ -45,9 +45,12 @@ _ANALYSIS_ERRORS = (InvalidInput, ModelNotFound, ModelNotFitted, PayloadTooLarge
     dependencies=[WriteAccess],
     responses=error_responses(*_ANALYSIS_ERRORS, IdempotencyKeyReused, Forbidden),
 )
-def post_scene(body: SceneCreate, model: ModelDep, state: StateDep, idempotency_key: IdempotencyKey = None) -> Response:
-    with model_write(state, model) as session:
-        answer, replayed = scene_service.learn_scene(session, model, state.hub, body, idempotency_key)
+def post_scene(
+    body: SceneCreate, model: WriteModelDep, state: StateDep, idempotency_key: IdempotencyKey = None
+) -> Response:
+    with model_write(state, model) as write:
+        answer, replayed = scene_service.learn_scene(write.session, model, write.version, body, idempotency_key)
+        write.version_saved, write.unchanged = not replayed, replayed
     headers = {"Idempotent-Replayed": "true"} if replayed else None
     return Response(answer, status.HTTP_201_CREATED, headers, media_type="application/json")
 

@@ -3,38 +3,45 @@
 from __future__ import annotations
 
 import asyncio
+import logging
 
 from fastapi import APIRouter, WebSocket
 
 from app.deps import API_KEY_HEADER, access_level
+from app.feed import SceneFeed
 from app.schemas.stream import HelloEvent
 from app.state import AppState
-from app.stream import CLOSE_MODEL_NOT_FOUND, CLOSE_UNAUTHORIZED, CloseInstruction, Subscriber
+from app.stream import CLOSE_INTERNAL_ERROR, CLOSE_MODEL_NOT_FOUND, CLOSE_UNAUTHORIZED, CloseInstruction, Subscriber
 
 router = APIRouter()
+logger = logging.getLogger("contextweb")
 
 
 @router.websocket("/v1/models/{model_id}/stream")
 async def stream(websocket: WebSocket, model_id: str) -> None:
     """Accept, check the key (header X-API-Key or query ``api_key``) and the model, then forward events."""
     state: AppState = websocket.state.contextweb
+    feed: SceneFeed = websocket.app.state.scene_feed
     await websocket.accept()
     key = websocket.headers.get(API_KEY_HEADER) or websocket.query_params.get("api_key")
     if access_level(state, key) is None:
         await websocket.close(CLOSE_UNAUTHORIZED, "a valid API key is required")
         return
-    model = state.registry.get(model_id)
-    if model is None:
+    try:
+        start = await feed.subscribe(model_id)  # the database says whether the model exists, on any process
+    except Exception as error:  # noqa: BLE001 - the database did not answer: say so and close
+        logger.warning("stream of model %s refused: %s: %s", model_id, type(error).__name__, error)
+        await websocket.close(CLOSE_INTERNAL_ERROR, "storage unavailable")
+        return
+    if start is None:
         await websocket.close(CLOSE_MODEL_NOT_FOUND, f"no model {model_id!r}")
         return
-    subscriber = state.hub.subscribe(model_id)
     try:
-        summary = model.summary
-        hello = HelloEvent(model_id=model_id, context_count=summary.context_count, scene_count=summary.scene_count)
+        hello = HelloEvent(model_id=model_id, context_count=start.context_count, scene_count=start.scene_count)
         await websocket.send_json(hello.model_dump(mode="json"))
-        await _forward(websocket, subscriber)
+        await _forward(websocket, start.subscriber)
     finally:
-        state.hub.unsubscribe(subscriber)
+        feed.unsubscribe(start.subscriber)
 
 
 async def _forward(websocket: WebSocket, subscriber: Subscriber) -> None:

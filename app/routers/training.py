@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, status
 
-from app.deps import ModelDep, ReadAccess, StateDep, WriteAccess, model_write
+from app.deps import ModelDep, ReadAccess, StateDep, WriteAccess, WriteModelDep, model_write
 from app.errors import (
     Forbidden,
     InvalidInput,
@@ -28,9 +28,9 @@ _WRITE_ERRORS = (InvalidInput, ModelNotFound, Unauthorized, Forbidden)
     dependencies=[WriteAccess],
     responses=error_responses(*_WRITE_ERRORS, PayloadTooLarge),
 )
-def add_training_objects(body: TrainingBatchCreate, model: ModelDep, state: StateDep) -> TrainingBatchRead:
-    with model_write(state, model) as session:
-        return training_service.add_training_objects(session, model, body)
+def add_training_objects(body: TrainingBatchCreate, model: WriteModelDep, state: StateDep) -> TrainingBatchRead:
+    with model_write(state, model) as write:
+        return training_service.add_training_objects(write.session, model, body)
 
 
 @router.post(
@@ -39,9 +39,9 @@ def add_training_objects(body: TrainingBatchCreate, model: ModelDep, state: Stat
     dependencies=[WriteAccess],
     responses=error_responses(*_WRITE_ERRORS, ModelNotFitted),
 )
-def fit(model: ModelDep, state: StateDep, body: FitCreate | None = None) -> FitRead:
-    with model_write(state, model) as session:
-        return training_service.fit(session, model, state.hub, body or FitCreate())
+def fit(model: WriteModelDep, state: StateDep, body: FitCreate | None = None) -> FitRead:
+    with model_write(state, model) as write:
+        return training_service.fit(write.session, model, body or FitCreate())
 
 
 @router.get(

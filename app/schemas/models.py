@@ -8,7 +8,7 @@ import inspect
 import textwrap
 import typing
 from datetime import datetime
-from typing import Any
+from typing import Literal, Any
 
 from pydantic import Field, create_model
 
@@ -122,6 +122,10 @@ class ModelRead(ReadSchema):
     vocabulary_size: int = Field(description="|W|: distinct concepts seen in scenes.")
     scene_count: int
     training_object_count: int
+    status: Literal["available", "unavailable"] = Field(
+        "available", description="`unavailable`: the stored state failed its check or is being reloaded (503s)."
+    )
+    unavailable_reason: str | None = Field(None, description="Why the model is unavailable, and what to run.")
     prototypes_fitted: bool
     concept_web_fitted: bool
     created_at: datetime

@@ -72,8 +72,7 @@ def delete_model(session: Session, registry: ModelRegistry, hub: StreamHub, mode
     model_repository.delete_model(session, model.id)
 
     def forget() -> None:
-        model.deleted = True
-        registry.remove(model.id)
+        registry.forget(model)
         hub.close_model(model.id, CLOSE_NORMAL, "model deleted")
 
     after_commit(session, forget)
@@ -93,6 +92,8 @@ def model_read(model: ModelRuntime) -> ModelRead:
         vocabulary_size=summary.vocabulary_size,
         scene_count=summary.scene_count,
         training_object_count=model.training_object_count,
+        status="unavailable" if model.unavailable is not None else "available",
+        unavailable_reason=model.unavailable,
         prototypes_fitted=perception.prototypes is not None,
         concept_web_fitted=perception.concept_web is not None,
         created_at=model.created_at,

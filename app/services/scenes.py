@@ -1,6 +1,6 @@
 """Scenes: learn one online (Algorithm 2's loop body), or only analyse it; the scene history.
 
-Learning a scene, under the model's lock (app/deps.py):
+Learning a scene, under the model's write lock (app/deps.py ``model_write``):
 
 1. the objects' concept webs (app/services/perception.py) — no database work;
 2. the Idempotency-Key: a key seen with the same body returns the stored answer
@@ -9,7 +9,8 @@ Learning a scene, under the model's lock (app/deps.py):
 4. Incremental-LDA learns the scene's active concepts (in memory);
 5. everything the update changed is written in this transaction: scene row with
    its answer, tokens, reassigned tokens, n_kw entries, new words, random state;
-6. after the commit: the summary is published and the stream told.
+6. after the commit: the summary is published. The stream learns of the scene from
+   the database, on every process (app/feed.py).
 """
 
 from __future__ import annotations
@@ -24,9 +25,7 @@ from app.errors import IdempotencyKeyReused, InvalidInput, SceneNotFound
 from app.registry import ModelRuntime, jsonable
 from app.schemas.common import Page
 from app.schemas.scenes import ObjectAnalysis, SceneCreate, SceneRead, SceneSummary
-from app.schemas.stream import ContextDiscoveredEvent, SceneEvent
 from app.services.perception import ObjectResult, SceneAnalysis, analyse_objects, in_context
-from app.stream import StreamHub
 from core.context.incremental import SceneUpdate
 from storage.database import pipelined
 from storage.repositories import incremental_lda as lda_repository
@@ -36,10 +35,11 @@ from storage.unit_of_work import after_commit
 
 
 def learn_scene(
-    session: Session, model: ModelRuntime, hub: StreamHub, body: SceneCreate, idempotency_key: str | None
+    session: Session, model: ModelRuntime, version: int, body: SceneCreate, idempotency_key: str | None
 ) -> tuple[str, bool]:
-    """Learn ``body`` online; returns the answer (the ``SceneRead`` JSON, stored byte for byte)
-    and whether it is a stored one (idempotent replay)."""
+    """Learn ``body`` online as the model's write ``version``; returns the answer (the ``SceneRead``
+    JSON, stored byte for byte) and whether it is a stored one (idempotent replay). A learned scene
+    stores ``version`` in its state row (the caller need not)."""
     request_hash = hashlib.sha256(body.model_dump_json().encode()).hexdigest()
     if idempotency_key is not None:
         stored = scene_repository.find_by_idempotency_key(session, model.id, idempotency_key)
@@ -51,14 +51,14 @@ def learn_scene(
     analysis = analyse_objects(model.perception, body.objects, model.id)
     words = _scene_words(analysis)
     analysis = in_context(model.perception, model.incremental_lda, analysis, sigma=model.sigma, seed=model.seed)
-    model.changing = True
     first_token = model.incremental_lda.lda_state.n_tokens
+    model.changing = True  # from here until the commit, memory holds what the database may not
     update = model.incremental_lda.learn_scene(words)
     model.word_kinds.extend(_kind(model, body, name) for name in update.vocabulary_additions)
     answer = _answer(model, update, analysis, created_at=datetime.now(UTC))
     answer_json = answer.model_dump_json()
-    _save(session, model, update, first_token, answer, answer_json, idempotency_key, request_hash)
-    after_commit(session, lambda: _announce(model, hub, answer))
+    _save(session, model, update, first_token, version, answer, answer_json, idempotency_key, request_hash)
+    after_commit(session, model.publish_summary)
     return answer_json, False
 
 
@@ -153,6 +153,7 @@ def _save(
     model: ModelRuntime,
     update: SceneUpdate,
     first_token: int,
+    version: int,
     answer: SceneRead,
     answer_json: str,
     idempotency_key: str | None,
@@ -160,7 +161,9 @@ def _save(
 ) -> None:
     first_word = len(model.word_kinds) - len(update.vocabulary_additions)
     with pipelined(session):  # PostgreSQL: the scene's statements in one round trip
-        _save_rows(session, model, update, first_token, first_word, answer, answer_json, idempotency_key, request_hash)
+        _save_rows(
+            session, model, update, first_token, first_word, version, answer, answer_json, idempotency_key, request_hash
+        )
 
 
 def _save_rows(
@@ -169,6 +172,7 @@ def _save_rows(
     update: SceneUpdate,
     first_token: int,
     first_word: int,
+    version: int,
     answer: SceneRead,
     answer_json: str,
     idempotency_key: str | None,
@@ -190,6 +194,7 @@ def _save_rows(
             ],
             context_count=update.contexts_after,
             state={"rng_state": jsonable(update.rng_state)},
+            version=version,
         ),
     )
     scene_repository.add_scene(
@@ -204,28 +209,3 @@ def _save_rows(
         answer=answer_json,
         created_at=answer.created_at,
     )
-
-
-def _announce(model: ModelRuntime, hub: StreamHub, answer: SceneRead) -> None:
-    model.publish_summary()
-    if not hub.subscriber_count(model.id):
-        return  # no dashboard is watching: the events would be built for nobody
-    assert answer.scene_id is not None and answer.created_at is not None
-    scene = SceneEvent(
-        model_id=model.id,
-        scene_id=answer.scene_id,
-        context_count=answer.context_count,
-        context_posterior=answer.context_posterior,
-        map_context=answer.map_context,
-        active_concepts=[obj.active_concepts for obj in answer.objects],
-        created_at=answer.created_at,
-    )
-    hub.publish(model.id, scene.model_dump(mode="json"))
-    if answer.context_count > answer.previous_context_count:
-        discovered = ContextDiscoveredEvent(
-            model_id=model.id,
-            scene_id=answer.scene_id,
-            context_count=answer.context_count,
-            previous_context_count=answer.previous_context_count,
-        )
-        hub.publish(model.id, discovered.model_dump(mode="json"))

@@ -16,7 +16,6 @@ from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput, ModelNotFitted
 from app.registry import ModelRuntime, behaviour_effects, jsonable
-from app.schemas.stream import ModelFittedEvent
 from app.schemas.training import (
     FitCreate,
     FitRead,
@@ -27,7 +26,6 @@ from app.schemas.training import (
     TrainingObjectCreate,
 )
 from app.services.perception import Perception, check_behaviours, feature_vectors, raw_feature_vectors
-from app.stream import StreamHub
 from core.concept_web import ConceptWeb
 from core.errors import InvalidInputError
 from core.features.layout import EFFECT_SIZE
@@ -87,8 +85,9 @@ def _check_adjectives(vocabulary: Vocabulary, adjectives: list[str], field: str)
             raise InvalidInput(field, f"needs exactly one of {first!r} / {second!r}, got {given}")
 
 
-def fit(session: Session, model: ModelRuntime, hub: StreamHub, body: FitCreate) -> FitRead:
-    """Fit the model's perception from all its training objects; it replaces the old one on commit."""
+def fit(session: Session, model: ModelRuntime, body: FitCreate) -> FitRead:
+    """Fit the model's perception from all its training objects; it replaces the old one on commit
+    (the stream's ``model_fitted`` event comes from the database: app/feed.py)."""
     objects = model_repository.list_training_objects(session, model.id)
     if not objects:
         raise ModelNotFitted(model.id, "training objects")
@@ -114,19 +113,19 @@ def fit(session: Session, model: ModelRuntime, hub: StreamHub, body: FitCreate) 
     effects = behaviour_effects(
         [vector for vector, _, _ in effect_rows], [behaviour for _, behaviour, _ in effect_rows]
     )
+    fitted_at = datetime.now(UTC)
     model_repository.save_fit(
         session,
         model.id,
         prototypes=jsonable(prototypes.to_state()),
         concept_web=jsonable(concept_web.to_state()),
-        fitted_at=datetime.now(UTC),
+        fitted_at=fitted_at,
     )
 
     def install() -> None:
         model.perception = Perception(vocabulary, prototypes, concept_web)
         model.effects = effects
-        event = ModelFittedEvent(model_id=model.id, training_object_count=len(objects))
-        hub.publish(model.id, event.model_dump(mode="json"))
+        model.fitted_at = fitted_at
 
     after_commit(session, install)
     return FitRead(

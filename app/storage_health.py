@@ -1,0 +1,58 @@
+"""Whether the database can take a write now: what the readiness probe reports (docs/operations.md).
+
+Two sources, because neither is enough alone. The writes of the requests say it
+first: a storage failure marks the database failing until a later write
+succeeds. A probe write (one row per process in ``storage_probe``) says it when
+no request writes: ``/readyz`` runs one at most every :data:`PROBE_INTERVAL_SECONDS`,
+and on every call while the database is failing, so readiness returns as soon
+as the database does. A full disk can accept the probe's small write (SQLite
+reuses the pages of its WAL file) and still refuse a scene's: so the probe's
+success does not clear a failure that a request's write reported; only a
+request's successful write does, or a probe after :data:`FAILURE_MEMORY_SECONDS`.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+
+#: Seconds a successful probe answers for.
+PROBE_INTERVAL_SECONDS = 2.0
+#: Seconds a request's storage failure keeps the service not ready unless a write succeeds.
+FAILURE_MEMORY_SECONDS = 5.0
+
+
+@dataclass(eq=False)
+class StorageHealth:
+    """The last known outcome of a write to the database, shared by the threads of one process."""
+
+    process_id: str = field(default_factory=lambda: f"{socket.gethostname()}:{os.getpid()}"[:64])
+    failure: str | None = None
+    failed_at: float = 0.0
+    probed_at: float = float("-inf")
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def record_success(self) -> None:
+        if self.failure is not None:
+            with self._lock:
+                self.failure = None
+
+    def record_failure(self, reason: str) -> None:
+        with self._lock:
+            self.failure = reason
+            self.failed_at = time.monotonic()
+
+    def probe_due(self) -> bool:
+        return self.failure is not None or time.monotonic() - self.probed_at >= PROBE_INTERVAL_SECONDS
+
+    def record_probe(self, failure: str | None) -> None:
+        """A probe's outcome; a success clears only a failure old enough (see the module's docstring)."""
+        with self._lock:
+            self.probed_at = time.monotonic()
+            if failure is not None:
+                self.failure, self.failed_at = failure, self.probed_at
+            elif self.failure is not None and self.probed_at - self.failed_at >= FAILURE_MEMORY_SECONDS:
+                self.failure = None

@@ -63,6 +63,12 @@ def _build_bridge(parser: argparse.ArgumentParser) -> None:
         tool.set_defaults(handler=module.run)
 
 
+def _build_models(parser: argparse.ArgumentParser) -> None:
+    from app import models_cli
+
+    models_cli.add_arguments(parser)
+
+
 def _build_report(parser: argparse.ArgumentParser) -> None:
     from core.experiments import report
 
@@ -101,6 +107,7 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
     "report": ("run every experiment and write the reproduction report", _build_report),
     "prototypes": ("the concept prototypes of Table VIII", _build_prototypes),
     "bridge": ("feed a running service: simulate the iCub world, replay recordings", _build_bridge),
+    "models": ("check the stored models against the storage invariants, repair their counts", _build_models),
 }
 
 

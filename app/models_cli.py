@@ -1,0 +1,114 @@
+"""``contextweb models check [ID]`` and ``contextweb models repair ID``: the stored models against their invariants.
+
+``check`` prints one line per model, ``<id> <name>: ok`` or the problems indented
+below it; it exits 0 when every model checked is sound, 1 when any has a problem
+and 2 for an unknown ID. ``repair`` rebuilds a model's counts from its scenes and
+token assignments (storage.repositories.consistency), prints what changed, checks
+the model again and exits 0 when it is sound afterwards. Both read the database
+of ``CONTEXTWEB_DATABASE_URL`` (the server's), which may be served meanwhile: a
+repair bumps the model's version, so serving processes reload it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from sqlalchemy.orm import Session, sessionmaker
+
+from app.settings import Settings
+from storage.database import create_database_engine, create_session_makers
+from storage.repositories import consistency
+from storage.unit_of_work import unit_of_work
+
+SOUND = 0
+PROBLEMS = 1
+UNKNOWN_MODEL = 2
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    actions = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
+    check = actions.add_parser("check", help="check stored models against the storage invariants (all without ID)")
+    check.add_argument("model_id", nargs="?", metavar="ID", help="the model to check (default: every model)")
+    check.set_defaults(handler=run_check)
+    repair = actions.add_parser("repair", help="rebuild a model's counts from its scenes and token assignments")
+    repair.add_argument("model_id", metavar="ID", help="the model to repair")
+    repair.set_defaults(handler=run_repair)
+
+
+@contextmanager
+def _session_makers() -> Iterator[tuple[sessionmaker[Session], sessionmaker[Session]]]:
+    settings = Settings()
+    engine = create_database_engine(settings.resolved_database_url, sqlite_synchronous=settings.sqlite_synchronous)
+    try:
+        yield create_session_makers(engine)
+    finally:
+        engine.dispose()
+
+
+def _model_name(session: Session, model_id: str) -> str | None:
+    return dict(consistency.stored_models(session)).get(model_id)
+
+
+def _print_result(model_id: str, name: str, problems: list[consistency.Problem]) -> None:
+    if not problems:
+        print(f"{model_id} {name}: ok")
+        return
+    print(f"{model_id} {name}: {len(problems)} problem{'s' if len(problems) > 1 else ''}")
+    for problem in problems:
+        print(f"  {problem.message}")
+    if all(problem.repairable for problem in problems):
+        print(f"  (all repairable: contextweb models repair {model_id})")
+    else:
+        print("  (not repairable from the rows: the stored scenes, tokens, words or random state are damaged)")
+
+
+def run_check(args: argparse.Namespace) -> int:
+    """Check one model or all; 0 when all are sound, 1 when any has a problem, 2 for an unknown ID."""
+    with _session_makers() as (read, _write), read() as session:
+        models = consistency.stored_models(session)
+        if args.model_id is not None:
+            models = [(model_id, name) for model_id, name in models if model_id == args.model_id]
+            if not models:
+                print(f"contextweb models check: no model with id {args.model_id!r}", file=sys.stderr)
+                return UNKNOWN_MODEL
+        exit_code = SOUND
+        for model_id, name in models:
+            problems = consistency.find_problems(session, model_id)
+            _print_result(model_id, name, problems)
+            if problems:
+                exit_code = PROBLEMS
+        if not models:
+            print("no models stored")
+    return exit_code
+
+
+def run_repair(args: argparse.Namespace) -> int:
+    """Repair one model, then check it again; 0 when it is sound afterwards, 2 for an unknown ID."""
+    model_id = args.model_id
+    with _session_makers() as (read, write):
+        with read() as session:
+            name = _model_name(session, model_id)
+        if name is None:
+            print(f"contextweb models repair: no model with id {model_id!r}", file=sys.stderr)
+            return UNKNOWN_MODEL
+        try:
+            with unit_of_work(write) as session:
+                changes = consistency.repair_model(session, model_id)
+        except consistency.UnrepairableModelError as error:
+            print(f"{model_id} {name}: not repaired, nothing changed; these problems cannot be repaired from the rows:")
+            for problem in error.problems:
+                print(f"  {problem}")
+            return PROBLEMS
+        if changes:
+            print(f"{model_id} {name}: repaired")
+            for change in changes:
+                print(f"  {change}")
+        else:
+            print(f"{model_id} {name}: nothing to repair")
+        with read() as session:
+            problems = consistency.find_problems(session, model_id)
+    _print_result(model_id, name, problems)
+    return PROBLEMS if problems else SOUND

@@ -34,6 +34,7 @@ from starlette.requests import HTTPConnection
 from app.errors import (
     Forbidden,
     ModelNotFound,
+    ModelUnavailable,
     StorageUnavailable,
     Unauthorized,
     is_storage_failure,
@@ -169,9 +170,7 @@ def model_write(state: AppState, model: ModelRuntime) -> Iterator[ModelWrite]:
                     state.registry.forget(model)
                     raise ModelNotFound(model.id)
                 if stored != model.version:
-                    model.changing = True  # until the catch-up completes, memory is unproven
-                    catch_up(session, model)
-                    model.changing = False
+                    _catch_up_for_write(state, session, model)
                 write = ModelWrite(session, stored + 1)
                 yield write
                 if not write.unchanged:
@@ -191,6 +190,20 @@ def model_write(state: AppState, model: ModelRuntime) -> Iterator[ModelWrite]:
             raise
         finally:
             model.changing = False
+
+
+def _catch_up_for_write(state: AppState, session: Session, model: ModelRuntime) -> None:
+    """Catch up under the write lock; changes that do not fit memory make the model unavailable
+    (a consistency problem of the stored state, never the client's invalid input)."""
+    model.changing = True  # until the catch-up completes, memory is unproven
+    try:
+        catch_up(session, model)
+    except Exception as error:
+        if is_storage_failure(error):
+            raise
+        _restore(state, model, error)
+        raise ModelUnavailable(model.id, model.unavailable or "its stored changes do not fit memory") from error
+    model.changing = False
 
 
 def _restore(state: AppState, model: ModelRuntime, error: BaseException) -> None:

@@ -3,9 +3,9 @@
 On start the lifespan creates the engine and the session makers, migrates the
 database to the latest schema, reloads every model into memory, warms up the
 numba kernels of a scene request and freezes start-up's objects out of the
-garbage collector (app/services/warmup.py), and binds the
-websocket hub to the event loop; on stop it closes the dashboards' sockets and
-disposes of the engine.
+garbage collector (app/services/warmup.py), binds the websocket hub to the event
+loop and starts the scene feed (app/feed.py); on stop it stops the feed, closes
+the dashboards' sockets and disposes of the engine.
 """
 
 from __future__ import annotations
@@ -61,12 +61,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         anyio.to_thread.current_default_thread_limiter().total_tokens = settings.worker_threads
         state = await anyio.to_thread.run_sync(_start, settings)
         state.hub.bind(asyncio.get_running_loop())
-        feed = _app.state.scene_feed = SceneFeed(state.hub, state.engine, state.read_sessions)
-        feed.start()
+        state.feed.start()
         try:
             yield {"contextweb": state}
         finally:
-            await anyio.to_thread.run_sync(feed.stop)
+            await anyio.to_thread.run_sync(state.feed.stop)
             state.hub.close_everyone("server shutting down")
             state.engine.dispose()
 
@@ -100,13 +99,15 @@ def _start(settings: Settings) -> AppState:
     )
     upgrade_to_head(engine)
     read_sessions, write_sessions = create_session_makers(engine)
+    hub = StreamHub(settings.stream_queue_size)
     state = AppState(
         settings=settings,
         engine=engine,
         read_sessions=read_sessions,
         write_sessions=write_sessions,
         registry=ModelRegistry(read_sessions),
-        hub=StreamHub(settings.stream_queue_size),
+        hub=hub,
+        feed=SceneFeed(hub, engine, read_sessions),
     )
     with read_sessions() as session:
         state.registry.load_all(session)

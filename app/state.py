@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
+from app.feed import SceneFeed
 from app.registry import ModelRegistry
 from app.settings import Settings
 from app.storage_health import StorageHealth
@@ -15,7 +16,7 @@ from app.stream import StreamHub
 
 @dataclass(eq=False)
 class AppState:
-    """Engine, session makers, in-memory models and the websocket hub of one app."""
+    """Engine, session makers, in-memory models, the websocket hub and its feed of one app."""
 
     settings: Settings
     engine: Engine
@@ -23,5 +24,6 @@ class AppState:
     write_sessions: sessionmaker[Session]
     registry: ModelRegistry
     hub: StreamHub
+    feed: SceneFeed
     storage: StorageHealth = field(default_factory=StorageHealth)
     models_loaded: bool = field(default=False)

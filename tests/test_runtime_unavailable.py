@@ -74,3 +74,25 @@ def test_a_refused_scene_changes_nothing_and_costs_no_reload(client: TestClient,
     assert response.status_code == 409 and response.json()["error"] == "model_not_fitted"
     assert model.unavailable is None and model.incremental_lda is learned, "a 422 must not reload the model"
     assert client.post(f"/v1/models/{model_id}/scenes", json=concept_scenes(1, seed=3)[0]).status_code == 201
+
+
+def test_stored_changes_that_do_not_fit_memory_are_a_503_never_a_422(database_url: str) -> None:
+    """The other process's rows were corrupted after it wrote them: catching up finds n_kw off."""
+    settings = make_settings(database_url)
+    with TestClient(create_app(settings)) as first, TestClient(create_app(settings)) as second:
+        model_id = _create_with_scenes(first, 2)
+        assert second.get(f"/v1/models/{model_id}").json()["scene_count"] == 2  # in the second's memory
+        for scene in concept_scenes(3, seed=12):
+            assert first.post(f"/v1/models/{model_id}/scenes", json=scene).status_code == 201
+        engine = create_database_engine(database_url)
+        with engine.begin() as connection:
+            connection.execute(
+                text("UPDATE context_word_count SET count = count + 1 WHERE model_id = :id AND version > 2"),
+                {"id": model_id},
+            )
+        engine.dispose()
+        response = second.post(f"/v1/models/{model_id}/scenes", json=concept_scenes(1, seed=0)[0])
+        assert response.status_code == 503, response.text
+        assert response.json()["error"] == "model_unavailable" and response.headers["Retry-After"]
+        listed = {model["id"]: model for model in second.get("/v1/models").json()}
+        assert listed[model_id]["status"] == "unavailable" and "n_kw" in listed[model_id]["unavailable_reason"]

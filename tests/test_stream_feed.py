@@ -110,7 +110,7 @@ def wait_for(value: Callable[[], Any], what: str, seconds: float = 15.0) -> Any:
 
 
 def scene_feed(client: TestClient) -> SceneFeed:
-    return client.app.state.scene_feed  # type: ignore[attr-defined]
+    return client.app_state["contextweb"].feed
 
 
 def post_scene(client: TestClient, model_id: str, body: dict) -> dict:

@@ -8,7 +8,6 @@ import logging
 from fastapi import APIRouter, WebSocket
 
 from app.deps import API_KEY_HEADER, access_level
-from app.feed import SceneFeed
 from app.schemas.stream import HelloEvent
 from app.state import AppState
 from app.stream import CLOSE_INTERNAL_ERROR, CLOSE_MODEL_NOT_FOUND, CLOSE_UNAUTHORIZED, CloseInstruction, Subscriber
@@ -21,7 +20,7 @@ logger = logging.getLogger("contextweb")
 async def stream(websocket: WebSocket, model_id: str) -> None:
     """Accept, check the key (header X-API-Key or query ``api_key``) and the model, then forward events."""
     state: AppState = websocket.state.contextweb
-    feed: SceneFeed = websocket.app.state.scene_feed
+    feed = state.feed
     await websocket.accept()
     key = websocket.headers.get(API_KEY_HEADER) or websocket.query_params.get("api_key")
     if access_level(state, key) is None:

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import threading
+
+import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
-from sqlalchemy import Engine, inspect
+from sqlalchemy import Engine, create_engine, inspect, text
 
+from storage.database import create_database_engine
 from storage.migrations import upgrade_to_head
 from storage.models import Base
 
@@ -34,3 +38,37 @@ def test_upgrading_twice_is_a_no_op_and_names_follow_the_convention(engine: Engi
     assert foreign_keys == {"fk_scene_model_id_model"}
     unique = {constraint["name"] for constraint in inspector.get_unique_constraints("scene")}
     assert unique == {"uq_scene_model_id_idempotency_key"}
+
+
+@pytest.mark.postgres
+def test_processes_that_start_together_migrate_one_database_once(postgres_url: str) -> None:
+    """Replicas start at once: concurrent upgrades of a fresh database all succeed (advisory lock)."""
+    name = f"{postgres_url.rsplit('/', 1)[1]}_race"
+    server = postgres_url.rsplit("/", 1)[0]
+    admin = create_engine(f"{server}/postgres", isolation_level="AUTOCOMMIT")
+    errors: list[str] = []
+
+    def upgrade() -> None:
+        engine = create_database_engine(f"{server}/{name}")
+        try:
+            upgrade_to_head(engine)
+        except Exception as error:  # noqa: BLE001 - collected and asserted below
+            errors.append(repr(error)[:300])
+        finally:
+            engine.dispose()
+
+    try:
+        for _ in range(3):
+            with admin.connect() as connection:
+                connection.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
+                connection.execute(text(f'CREATE DATABASE "{name}"'))
+            threads = [threading.Thread(target=upgrade) for _ in range(3)]
+            for thread in threads:
+                thread.start()
+            for thread in threads:
+                thread.join(timeout=120)
+        assert errors == []
+    finally:
+        with admin.connect() as connection:
+            connection.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
+        admin.dispose()

@@ -11,6 +11,8 @@ immediate one queues on the busy timeout.
 
 from __future__ import annotations
 
+import os
+import sqlite3
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -41,20 +43,48 @@ def normalise_url(url: str) -> str:
     return parsed.render_as_string(hide_password=False)
 
 
+#: libpq connection parameters of every PostgreSQL connection: a server that cannot be reached is
+#: an error within seconds, not a hang (``connect_timeout``; ``tcp_user_timeout``, in ms, for sent
+#: data that stays unacknowledged, as on a cut link; client keepalives for an idle connection).
+POSTGRES_CONNECT_ARGS: dict[str, Any] = {
+    "connect_timeout": 3,
+    "tcp_user_timeout": 5_000,
+    "keepalives": 1,
+    "keepalives_idle": 5,
+    "keepalives_interval": 2,
+    "keepalives_count": 2,
+}
+#: Session settings sent with every PostgreSQL connection: a writer waits at most ``lock_timeout``
+#: for a model's lock (then a 503, never an endless wait), and the server notices a client that
+#: vanished mid-transaction within ~10 s (its keepalives) and releases its locks; a transaction
+#: left idle (never one of ours: they are milliseconds) ends after a minute.
+POSTGRES_SESSION_OPTIONS = (
+    "-c lock_timeout=10s -c idle_in_transaction_session_timeout=60s "
+    "-c tcp_keepalives_idle=5 -c tcp_keepalives_interval=2 -c tcp_keepalives_count=2"
+)
+
+
 def create_database_engine(url: str, *, sqlite_synchronous: str = "FULL", pool_size: int = 8) -> Engine:
-    """An engine for ``url``; SQLite files get their folder created and the pragmas above."""
+    """An engine for ``url``; SQLite files get their folder created and the pragmas above; PostgreSQL
+    connections the time-outs above."""
     url = normalise_url(url)
     if not is_sqlite(url):
-        return create_engine(url, pool_size=pool_size, max_overflow=pool_size, pool_pre_ping=True)
+        return create_engine(
+            url,
+            pool_size=pool_size,
+            max_overflow=pool_size,
+            pool_pre_ping=True,
+            connect_args={**POSTGRES_CONNECT_ARGS, "options": POSTGRES_SESSION_OPTIONS},
+        )
     database = make_url(url).database
     if database and database != ":memory:":
         Path(database).parent.mkdir(parents=True, exist_ok=True)
     engine = create_engine(url, pool_size=pool_size, max_overflow=pool_size, connect_args={"check_same_thread": False})
-    _install_sqlite_pragmas(engine, sqlite_synchronous)
+    _install_sqlite_pragmas(engine, sqlite_synchronous, database)
     return engine
 
 
-def _install_sqlite_pragmas(engine: Engine, synchronous: str) -> None:
+def _install_sqlite_pragmas(engine: Engine, synchronous: str, database: str | None) -> None:
     @event.listens_for(engine, "connect")
     def _on_connect(dbapi_connection: Any, _record: Any) -> None:
         dbapi_connection.isolation_level = None  # transactions are begun by _on_begin, not by pysqlite
@@ -64,6 +94,16 @@ def _install_sqlite_pragmas(engine: Engine, synchronous: str) -> None:
         cursor.execute("PRAGMA foreign_keys=ON")
         cursor.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
         cursor.close()
+
+    @event.listens_for(engine, "do_connect")
+    def _refuse_read_only_file(_dialect: Any, _record: Any, _args: Any, _kwargs: Any) -> None:
+        # SQLite opens a file it may not write (chattr +i, a read-only remount) read-only without a
+        # word, and the pool would keep that connection after the file is writable again: every later
+        # write on it would fail. The connection is refused instead (an OperationalError, so a 503),
+        # and the next attempt opens the file as it is then.
+        for path in (database, f"{database}-wal"):
+            if path and path != ":memory:" and os.path.exists(path) and not os.access(path, os.W_OK):
+                raise sqlite3.OperationalError(f"attempt to write a readonly database: {path} is not writable")
 
     @event.listens_for(engine, "begin")
     def _on_begin(connection: Any) -> None:

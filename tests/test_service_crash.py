@@ -11,54 +11,20 @@ loopback.
 
 from __future__ import annotations
 
-import os
-import signal
-import socket
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import httpx
-import pytest
 
 from storage.database import create_database_engine, create_session_makers
 from storage.repositories import incremental_lda as lda_repository
 from tests.conftest import FAST_HYPERPARAMETERS
+from tests.servers import free_port, start_server_or_fail
 
-PROJECT_ROOT = Path(__file__).resolve().parents[1]
 SCENE = {"objects": [{"concepts": ["cup", "hard", "short"]}, {"concepts": ["ball", "soft", "noisy", "spoon"]}]}
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def _start_server(database_url: str, port: int, log: Path) -> subprocess.Popen[bytes]:
-    env = {key: value for key, value in os.environ.items() if not key.startswith("CONTEXTWEB_")}
-    env |= {"CONTEXTWEB_DATABASE_URL": database_url, "CONTEXTWEB_PORT": str(port), "CONTEXTWEB_HOST": "0.0.0.0"}
-    process = subprocess.Popen(
-        [sys.executable, "-m", "app.cli", "serve", "--log-level", "warning"],
-        cwd=PROJECT_ROOT,
-        env=env,
-        stdout=log.open("ab"),
-        stderr=subprocess.STDOUT,
-    )
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        try:
-            if httpx.get(f"http://127.0.0.1:{port}/readyz", timeout=1).status_code == 200:
-                return process
-        except httpx.TransportError:
-            pass
-        if process.poll() is not None:
-            break
-        time.sleep(0.1)
-    process.kill()
-    pytest.fail(f"the server did not become ready:\n{log.read_text()}")
+#: Asked for 0.0.0.0 without an API key: the server must stay on loopback (and say so).
+ALL_INTERFACES = {"CONTEXTWEB_HOST": "0.0.0.0"}
 
 
 def _post_until_killed(base: str, model_id: str, acknowledged: dict[str, dict], in_flight: list[str]) -> None:
@@ -75,9 +41,9 @@ def _post_until_killed(base: str, model_id: str, acknowledged: dict[str, dict], 
 
 
 def test_sigkill_while_posting_loses_no_acknowledged_scene(database_url: str, tmp_path: Path) -> None:
-    port, log = _free_port(), tmp_path / "server.log"
+    port = free_port()
     base = f"http://127.0.0.1:{port}"
-    server = _start_server(database_url, port, log)
+    server = start_server_or_fail(database_url, tmp_path, port=port, env=ALL_INTERFACES)
     try:
         body = {"name": "robot", "seed": 1, "hyperparameters": FAST_HYPERPARAMETERS}
         model_id = httpx.post(f"{base}/v1/models", json=body).json()["id"]
@@ -87,12 +53,11 @@ def test_sigkill_while_posting_loses_no_acknowledged_scene(database_url: str, tm
         robot.start()
         while len(acknowledged) < 25 and robot.is_alive():
             time.sleep(0.005)
-        server.send_signal(signal.SIGKILL)
-        server.wait()
+        server.kill()
         robot.join(timeout=30)
         assert not robot.is_alive() and len(acknowledged) >= 25
 
-        server = _start_server(database_url, port, log)
+        server = start_server_or_fail(database_url, tmp_path, port=port, env=ALL_INTERFACES)
         stored = httpx.get(f"{base}/v1/models/{model_id}/scenes", params={"limit": 500}).json()
         assert stored["total"] in (len(acknowledged), len(acknowledged) + 1)
         for answer in acknowledged.values():
@@ -105,8 +70,8 @@ def test_sigkill_while_posting_loses_no_acknowledged_scene(database_url: str, tm
         assert after["scene_count"] == len(acknowledged) + 1
     finally:
         server.kill()
-        server.wait()
-    assert "binds 127.0.0.1 only (not 0.0.0.0)" in log.read_text(), "without keys the server stays on loopback"
+    log = server.log_path.read_text()
+    assert "binds 127.0.0.1 only (not 0.0.0.0)" in log, "without keys the server stays on loopback"
     engine = create_database_engine(database_url)
     read, _ = create_session_makers(engine)
     with read() as session:

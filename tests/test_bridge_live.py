@@ -120,7 +120,8 @@ def test_scenes_arrive_exactly_once_across_a_service_crash(service: ServiceProce
     dashboard = Client(service.url, READ_KEY, retry_policy=policy)
     events: list[HelloEvent | SceneEvent] = []
     watcher = threading.Thread(
-        target=lambda: events.extend(e for e in dashboard.stream(model_id) if isinstance(e, (HelloEvent, SceneEvent)))
+        target=lambda: events.extend(e for e in dashboard.stream(model_id) if isinstance(e, (HelloEvent, SceneEvent))),
+        daemon=True,  # a failing assertion must not leave pytest waiting for the stream at exit
     )
     watcher.start()
 

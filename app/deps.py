@@ -28,6 +28,7 @@ import anyio
 
 from fastapi import Depends, Path, Security
 from fastapi.security import APIKeyHeader
+from pydantic import SecretStr
 from sqlalchemy.orm import Session
 from starlette.requests import HTTPConnection
 
@@ -69,13 +70,18 @@ def access_level(state: AppState, key: str | None) -> str | None:
     settings = state.settings
     if not settings.auth_enabled:
         return "write"
-    if key is None:
+    if not key:  # an empty key never matches, whatever is configured
         return None
-    if settings.write_key is not None and secrets.compare_digest(key, settings.write_key.get_secret_value()):
+    presented = key.encode("utf-8", "surrogateescape")  # any header value; compared as bytes in constant time
+    if settings.write_key is not None and secrets.compare_digest(presented, _key_bytes(settings.write_key)):
         return "write"
-    if settings.read_key is not None and secrets.compare_digest(key, settings.read_key.get_secret_value()):
+    if settings.read_key is not None and secrets.compare_digest(presented, _key_bytes(settings.read_key)):
         return "read"
     return None
+
+
+def _key_bytes(key: SecretStr) -> bytes:
+    return key.get_secret_value().encode("utf-8")
 
 
 async def require_read_key(state: StateDep, key: Annotated[str | None, Security(_api_key)]) -> None:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field, SecretStr, model_validator
+from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from storage.database import DEFAULT_DATABASE_URL
@@ -39,6 +39,16 @@ class Settings(BaseSettings):
     database_pool_size: int = Field(8, ge=1, description="Connections kept open per process.")
     stream_queue_size: int = Field(256, ge=1, description="Events buffered per websocket client before it is dropped.")
     worker_threads: int = Field(16, ge=1, description="Threads running the blocking routes (numba, database).")
+
+    @field_validator("write_key", "read_key", mode="before")
+    @classmethod
+    def _empty_key_is_unset(cls, value: object) -> object:
+        """``CONTEXTWEB_READ_KEY=`` (compose's ``${CONTEXTWEB_READ_KEY:-}``) means no key, not the empty key."""
+        if value is None or (isinstance(value, str) and not value.strip()):
+            return None
+        if isinstance(value, SecretStr) and not value.get_secret_value().strip():
+            return None
+        return value
 
     @model_validator(mode="after")
     def _refuse_unsafe_keys(self) -> Settings:

@@ -59,3 +59,29 @@ def test_without_keys_the_server_binds_loopback_only() -> None:
         Settings(write_key=None, read_key="r")
     with pytest.raises(ValidationError, match="production needs CONTEXTWEB_WRITE_KEY"):
         Settings(environment="production", write_key=None, read_key=None)
+
+
+def test_any_header_value_is_a_401_never_a_500(secured: TestClient) -> None:
+    """Keys are compared as bytes: a non-ASCII key (seen as a 500 with a traceback) is only a wrong key."""
+    for key in ("é", "robot-secreté", "\u2603" * 40):
+        response = secured.get("/v1/models", headers={"X-API-Key": key.encode()})
+        assert response.status_code == 401 and response.json()["error"] == "unauthorized", key
+    model_id = secured.post("/v1/models", json={"name": "m"}, headers=WRITE).json()["id"]
+    with pytest.raises(WebSocketDisconnect) as closed:
+        with secured.websocket_connect(f"/v1/models/{model_id}/stream?api_key=%C3%A9") as ws:
+            ws.receive_json()
+    assert closed.value.code == CLOSE_UNAUTHORIZED
+
+
+def test_an_empty_key_is_unset_and_never_matches(database_url: str) -> None:
+    """An operator who exports an empty read key gets no read key, and an empty presented key opens nothing."""
+    settings = make_settings(database_url, write_key="robot-secret", read_key="")
+    assert settings.read_key is None
+    with TestClient(create_app(settings)) as client:
+        model_id = client.post("/v1/models", json={"name": "m"}, headers=WRITE).json()["id"]
+        assert client.get("/v1/models", headers={"X-API-Key": ""}).status_code == 401
+        with pytest.raises(WebSocketDisconnect) as closed:
+            with client.websocket_connect(f"/v1/models/{model_id}/stream?api_key=") as ws:
+                ws.receive_json()
+        assert closed.value.code == CLOSE_UNAUTHORIZED
+    assert make_settings(database_url, write_key="", read_key="").write_key is None

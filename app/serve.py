@@ -7,6 +7,7 @@ import logging
 import os
 from typing import Any
 
+from app.logs import log_config
 from app.settings import LOOPBACK_HOSTS, Settings
 from storage.database import create_database_engine
 from storage.migrations import upgrade_to_head
@@ -57,7 +58,14 @@ def run_serve(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise SystemExit("contextweb serve: --workers must be at least 1")
     if args.workers == 1:
-        uvicorn.run(create_app(settings), host=host, port=settings.port, log_level=args.log_level, access_log=False)
+        uvicorn.run(
+            create_app(settings),
+            host=host,
+            port=settings.port,
+            log_level=args.log_level,
+            log_config=log_config(),
+            access_log=False,
+        )
         return 0
     # Each worker builds its own app from the environment (uvicorn imports the factory by name).
     os.environ.update({f"CONTEXTWEB_{name.upper()}": str(value) for name, value in overrides.items()})
@@ -68,6 +76,7 @@ def run_serve(args: argparse.Namespace) -> int:
         host=host,
         port=settings.port,
         log_level=args.log_level,
+        log_config=log_config(),
         access_log=False,
     )
     return 0

@@ -140,11 +140,15 @@ class DriverStatements:
         """The first row a query answers (values as the driver gives them), or None."""
         return self._run(statement, parameters, many=False, fetch=True)
 
+    def fetchall(self, statement: str, parameters: Sequence[Any]) -> list[tuple[Any, ...]]:
+        """Every row a query answers, as the driver's plain tuples (what numpy converts fast)."""
+        return self._run(statement, parameters, many=False, fetch_all=True)
+
     def bind(self, column: Any) -> Callable[[Any], Any]:
         """SQLAlchemy's conversion of a value for ``column`` (a Column) on this dialect."""
         return _bind_processor(self.dialect, column.type)
 
-    def _run(self, statement: str, parameters: Any, *, many: bool, fetch: bool = False) -> Any:
+    def _run(self, statement: str, parameters: Any, *, many: bool, fetch: bool = False, fetch_all: bool = False) -> Any:
         if not self._qmark:
             statement = statement.replace("?", "%s")
         cursor = self._driver.cursor()
@@ -153,6 +157,8 @@ class DriverStatements:
                 cursor.executemany(statement, parameters)
             else:
                 cursor.execute(statement, parameters)
+            if fetch_all:
+                return cursor.fetchall()
             return cursor.fetchone() if fetch else None
         except self.dialect.loaded_dbapi.Error as error:
             raise DBAPIError.instance(

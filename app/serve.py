@@ -58,20 +58,14 @@ def run_serve(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise SystemExit("contextweb serve: --workers must be at least 1")
     if args.workers == 1:
-        uvicorn.run(
-            create_app(settings),
-            host=host,
-            port=settings.port,
-            log_level=args.log_level,
-            log_config=log_config(),
-            access_log=False,
-        )
-        return 0
-    # Each worker builds its own app from the environment (uvicorn imports the factory by name).
-    os.environ.update({f"CONTEXTWEB_{name.upper()}": str(value) for name, value in overrides.items()})
+        target: Any = create_app(settings)
+    else:
+        # Each worker builds its own app from the environment (uvicorn imports the factory by name).
+        os.environ.update({f"CONTEXTWEB_{name.upper()}": str(value) for name, value in overrides.items()})
+        target = "app.main:create_app"
     uvicorn.run(
-        "app.main:create_app",
-        factory=True,
+        target,
+        factory=args.workers > 1,
         workers=args.workers,
         host=host,
         port=settings.port,

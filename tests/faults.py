@@ -852,3 +852,41 @@ def create_model(base_url: str, hyperparameters: dict[str, Any], *, name: str = 
     )
     assert response.status_code == 201, response.text
     return str(response.json()["id"])
+
+
+def assert_nothing_lost_then_restart(
+    url: str, server: Any, model_id: str, clients: Sequence[KeyedClient], readiness: Sequence[str], log_dir: Path
+) -> None:
+    """The checks of issue 13 after a storage fault under load, then a restart that must load the model.
+
+    The server stayed up; writes failed during the fault (some 503) and every attempt kept the
+    error contract; readiness behaved (``readiness`` lists what it did wrong); every scene was
+    finally acknowledged and is stored as acknowledged, without id gaps, with n_kw equal to the
+    assignments; committed keys replay; a new server process loads the model with every scene.
+    """
+    from tests.servers import start_server_or_fail  # the server helpers import nothing from here
+
+    posts = all_posts(clients)
+    summary = status_summary(posts)
+    print(f"statuses of {len(posts)} scenes: {summary}")
+    assert server.running, f"the server exited ({server.process.returncode}) during the fault:\n{server.log()}"
+    assert sum(post.acknowledged for post in posts) >= 40, f"too little load to test anything: {summary}"
+    problems = contract_problems(clients)
+    assert not problems, f"statuses {summary}; {len(problems)} problems:\n" + "\n".join(problems[:20])
+    assert not readiness, "\n".join(readiness)
+    assert any(503 in post.statuses for post in posts), f"no write failed during the fault: {summary}"
+    assert not unfinished(clients), f"scenes never acknowledged: {unfinished(clients)[:10]}"
+    invariants = model_invariants(url, [server.base_url], model_id, posts)
+    assert not invariants, "\n".join(invariants)
+    replays = replay_problems(server.base_url, model_id, posts)
+    assert not replays, "\n".join(replays)
+    stored = stored_scene_count(url, model_id)
+
+    server.stop()
+    restarted = start_server_or_fail(url, log_dir, name="restarted")
+    try:
+        model = httpx.get(f"{restarted.base_url}/v1/models/{model_id}", timeout=20)
+        assert model.status_code == 200, model.text
+        assert model.json()["scene_count"] == stored
+    finally:
+        restarted.stop()

@@ -26,22 +26,16 @@ import pytest
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
 from tests.faults import (
     KeyedClient,
-    all_posts,
-    contract_problems,
+    assert_nothing_lost_then_restart,
     create_model,
     database_name,
     fresh_postgres_database,
-    model_invariants,
     postgres_outage,
     readiness_problem,
-    replay_problems,
-    status_summary,
     stop_clients,
-    stored_scene_count,
-    unfinished,
     wait_ready,
 )
-from tests.servers import running_server, start_server_or_fail
+from tests.servers import running_server
 
 pytestmark = [pytest.mark.postgres, pytest.mark.slow]
 
@@ -86,26 +80,4 @@ def test_postgres_outages_under_load_lose_nothing(tmp_path: Path) -> None:
         finally:
             stop_clients(clients, join_seconds=30)
 
-        posts = all_posts(clients)
-        summary = status_summary(posts)
-        print(f"statuses of {len(posts)} scenes: {summary}")
-        assert server.running, f"the server exited ({server.process.returncode}) during the outages:\n{server.log()}"
-        assert sum(post.acknowledged for post in posts) >= 40, f"too little load to test anything: {summary}"
-        problems = contract_problems(clients)
-        assert not problems, f"statuses {summary}; {len(problems)} problems:\n" + "\n".join(problems[:20])
-        assert not readiness, "\n".join(readiness)
-        assert not unfinished(clients), f"scenes never acknowledged: {unfinished(clients)[:10]}"
-        invariants = model_invariants(url, [server.base_url], model_id, posts)
-        assert not invariants, "\n".join(invariants)
-        replays = replay_problems(server.base_url, model_id, posts)
-        assert not replays, "\n".join(replays)
-        stored = stored_scene_count(url, model_id)
-
-        server.stop()
-        restarted = start_server_or_fail(url, tmp_path, name="restarted")
-        try:
-            model = httpx.get(f"{restarted.base_url}/v1/models/{model_id}", timeout=20)
-            assert model.status_code == 200, model.text
-            assert model.json()["scene_count"] == stored
-        finally:
-            restarted.stop()
+        assert_nothing_lost_then_restart(url, server, model_id, clients, readiness, tmp_path)

@@ -25,7 +25,6 @@ from dataclasses import dataclass
 from typing import Annotated
 
 import anyio
-
 from fastapi import Depends, Path, Security
 from fastapi.security import APIKeyHeader
 from pydantic import SecretStr

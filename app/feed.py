@@ -192,7 +192,7 @@ class SceneFeed:
                 try:
                     next_read = self._step(next_read)
                     failing = False
-                except Exception:  # noqa: BLE001 - the thread must outlive any failure
+                except Exception:
                     if not failing:
                         failing = True
                         logger.exception("the scene feed failed; it retries every %.2f s", self.interval)
@@ -241,7 +241,7 @@ class SceneFeed:
         """:meth:`_read`, logging a failure once per outage (the next read retries)."""
         try:
             self._read(cursors)
-        except Exception as error:  # noqa: BLE001 - the thread must outlive any failure
+        except Exception as error:
             if not self._read_failing:
                 self._read_failing = True
                 database_error = isinstance(error, DBAPIError | psycopg.Error)

@@ -20,6 +20,8 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
@@ -278,7 +280,7 @@ class ModelRegistry:
     that names them (:meth:`resolve`) or lists them (:meth:`synchronise`).
     """
 
-    def __init__(self, read_sessions: sessionmaker[Session] | None = None) -> None:
+    def __init__(self, read_sessions: sessionmaker[Session]) -> None:
         self._models: dict[str, ModelRuntime] = {}
         self._lock = threading.Lock()
         self._read_sessions = read_sessions
@@ -312,21 +314,15 @@ class ModelRegistry:
 
     # Keeping memory equal to the database.
 
-    def _snapshot(self) -> Any:
-        assert self._read_sessions is not None, "a registry that synchronises needs its read sessions"
+    def _snapshot(self) -> AbstractContextManager[Session]:
         return snapshot(self._read_sessions)
 
     def resolve(self, model_id: str) -> ModelRuntime:
         """The model ``model_id`` as stored now: loaded if another process created it, caught up if
         another process wrote to it; 404 if it does not exist, 503 if it cannot serve. Costs one
         primary-key read when memory is current (read-your-writes across processes)."""
-        try:
-            with self._snapshot() as session:
-                version = lda_repository.stored_version(session, model_id)
-        except Exception as error:
-            if is_storage_failure(error):
-                raise StorageUnavailable(storage_failure_reason(error)) from error
-            raise
+        with _storage_errors(), self._snapshot() as session:
+            version = lda_repository.stored_version(session, model_id)
         model = self._models.get(model_id)
         if version is None:
             if model is not None:
@@ -402,13 +398,8 @@ class ModelRegistry:
     def synchronise(self) -> list[ModelRuntime]:
         """Every stored model, as stored now (a listing): new ones loaded, deleted ones forgotten, the
         others caught up; one query when nothing changed. Models that cannot serve stay listed."""
-        try:
-            with self._snapshot() as session:
-                versions = lda_repository.stored_versions(session)
-        except Exception as error:
-            if is_storage_failure(error):
-                raise StorageUnavailable(storage_failure_reason(error)) from error
-            raise
+        with _storage_errors(), self._snapshot() as session:
+            versions = lda_repository.stored_versions(session)
         for model_id in set(self._models) - set(versions):
             self.forget(self._models[model_id])
         for model_id, version in versions.items():
@@ -422,6 +413,17 @@ class ModelRegistry:
             except (ModelUnavailable, ModelNotFound):
                 continue  # listed as unavailable, or gone meanwhile
         return self.all()
+
+
+@contextmanager
+def _storage_errors() -> Iterator[None]:
+    """A storage failure in the block is a 503 ``storage_unavailable`` (no model is left unproven by it)."""
+    try:
+        yield
+    except Exception as error:
+        if is_storage_failure(error):
+            raise StorageUnavailable(storage_failure_reason(error)) from error
+        raise
 
 
 def _loaded_or_unavailable(session: Session, row: Model) -> ModelRuntime:

@@ -53,7 +53,6 @@ import httpx
 from bench import RESULTS
 from bench.bench_service import (
     CLIENTS,
-    pipeline_ms,
     PROJECT,
     SERVING,
     LeanClient,
@@ -63,6 +62,7 @@ from bench.bench_service import (
     _summary,
     _trained_model,
     concept_scenes,
+    pipeline_ms,
     training_objects,
 )
 from core.features.extract import recording_features
@@ -456,7 +456,7 @@ def run_backend(
             measure("single_again", [(a, model) for model in models])
         stop(a)
     finally:
-        for server in list(servers):
+        for server in servers:
             stop(server)
         result["server_log_problems"] = problems
     reference = [throughput[name]["scenes_per_second"] for name in ("single", "single_again") if name in throughput]

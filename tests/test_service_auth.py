@@ -67,9 +67,9 @@ def test_any_header_value_is_a_401_never_a_500(secured: TestClient) -> None:
         response = secured.get("/v1/models", headers={"X-API-Key": key.encode()})
         assert response.status_code == 401 and response.json()["error"] == "unauthorized", key
     model_id = secured.post("/v1/models", json={"name": "m"}, headers=WRITE).json()["id"]
-    with pytest.raises(WebSocketDisconnect) as closed:
-        with secured.websocket_connect(f"/v1/models/{model_id}/stream?api_key=%C3%A9") as ws:
-            ws.receive_json()
+    stream = f"/v1/models/{model_id}/stream?api_key=%C3%A9"
+    with pytest.raises(WebSocketDisconnect) as closed, secured.websocket_connect(stream) as ws:
+        ws.receive_json()
     assert closed.value.code == CLOSE_UNAUTHORIZED
 
 
@@ -80,8 +80,8 @@ def test_an_empty_key_is_unset_and_never_matches(database_url: str) -> None:
     with TestClient(create_app(settings)) as client:
         model_id = client.post("/v1/models", json={"name": "m"}, headers=WRITE).json()["id"]
         assert client.get("/v1/models", headers={"X-API-Key": ""}).status_code == 401
-        with pytest.raises(WebSocketDisconnect) as closed:
-            with client.websocket_connect(f"/v1/models/{model_id}/stream?api_key=") as ws:
-                ws.receive_json()
+        stream = f"/v1/models/{model_id}/stream?api_key="
+        with pytest.raises(WebSocketDisconnect) as closed, client.websocket_connect(stream) as ws:
+            ws.receive_json()
         assert closed.value.code == CLOSE_UNAUTHORIZED
     assert make_settings(database_url, write_key="", read_key="").write_key is None

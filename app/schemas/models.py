@@ -8,7 +8,7 @@ import inspect
 import textwrap
 import typing
 from datetime import datetime
-from typing import Literal, Any
+from typing import Any, Literal
 
 from pydantic import Field, create_model
 

@@ -8,7 +8,7 @@ service. Array payloads travel as base64 of little-endian float32
 (:func:`float32_base64`), a quarter of the size of JSON numbers.
 
 Sizes of Table III are repeated here (the bridge cannot import ``core``);
-tests/test_bridge_models.py checks them against ``core.features.layout``.
+tests/test_bridge_client.py checks them against ``core.features.layout``.
 """
 
 from __future__ import annotations

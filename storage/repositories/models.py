@@ -6,7 +6,7 @@ from collections.abc import Sequence
 from datetime import datetime
 from typing import Any
 
-from sqlalchemy import delete, func, select, update
+from sqlalchemy import delete, select, update
 from sqlalchemy.orm import Session
 
 from storage.models import Model, TrainingObject
@@ -63,8 +63,3 @@ def list_training_objects(session: Session, model_id: str) -> Sequence[TrainingO
     return session.scalars(
         select(TrainingObject).where(TrainingObject.model_id == model_id).order_by(TrainingObject.id)
     ).all()
-
-
-def count_training_objects(session: Session, model_id: str) -> int:
-    statement = select(func.count()).select_from(TrainingObject).where(TrainingObject.model_id == model_id)
-    return int(session.scalar(statement) or 0)

@@ -12,6 +12,7 @@ from scipy.stats import dirichlet_multinomial
 from core.context.metrics import (
     PAPER_RHO,
     average_log_likelihood,
+    concept_relevance,
     contextual_entropy,
     dirichlet_multinomial_log_likelihood,
 )
@@ -69,3 +70,30 @@ def test_average_log_likelihood_eq7_floors_zero_and_validates() -> None:
         average_log_likelihood([])
     with pytest.raises(InvalidInputError, match=r"related_concept_probabilities\[0\]"):
         average_log_likelihood([[]])
+
+
+def test_relevance_at_one_ranks_by_probability_and_at_zero_by_lift() -> None:
+    # Two contexts over four concepts: "shared" is equally likely in both, "pour" only in the first.
+    phi = np.array([[0.45, 0.40, 0.10, 0.05], [0.45, 0.05, 0.10, 0.40]])
+    weights = np.array([3.0, 1.0])
+    marginal = (weights / weights.sum()) @ phi
+    by_probability = concept_relevance(phi, weights, 1.0)
+    np.testing.assert_allclose(by_probability, np.log(phi))
+    by_lift = concept_relevance(phi, weights, 0.0)
+    np.testing.assert_allclose(by_lift, np.log(phi / marginal))
+    assert by_lift[0, 0] == pytest.approx(0.0, abs=1e-12)  # a concept shared equally has lift 1
+    assert np.argmax(by_probability[0]) == 0 and np.argmax(by_lift[0]) == 1  # the shared concept drops
+    np.testing.assert_allclose(concept_relevance(phi, weights, 0.6), 0.6 * by_probability + 0.4 * by_lift)
+
+
+@pytest.mark.parametrize(
+    ("weights", "weight", "field"),
+    [(np.array([1.0, 1.0]), 1.5, "relevance_weight"), (np.array([1.0]), 0.6, "context_weights"),
+     (np.zeros(2), 0.6, "context_weights")],
+)  # fmt: skip
+def test_relevance_refuses_a_weight_outside_0_1_and_bad_context_weights(
+    weights: np.ndarray, weight: float, field: str
+) -> None:
+    with pytest.raises(InvalidInputError) as raised:
+        concept_relevance(np.full((2, 3), 1 / 3), weights, weight)
+    assert raised.value.field == field

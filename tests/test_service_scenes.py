@@ -14,7 +14,7 @@ from core.concept_web import ConceptWeb
 from core.world import World
 from storage.database import create_session_makers
 from storage.repositories import incremental_lda as lda_repository
-from tests.conftest import concept_scenes, synthetic_training_objects
+from tests.conftest import CONTEXT_CONCEPTS, concept_scenes, synthetic_training_objects
 
 KITCHEN = {"objects": [{"concepts": ["cup", "hard", "short"]}, {"concepts": ["plate", "round"]}]}
 PLAYROOM = {"objects": [{"concepts": ["ball", "soft", "noisy"]}, {"concepts": {"box": 0.9, "edgy": 0.8}}]}
@@ -81,6 +81,32 @@ def test_history_pages_and_contexts_list(client: TestClient, model_id: str) -> N
         probabilities = [concept["probability"] for concept in context["top_concepts"]]
         assert len(probabilities) == 3 and probabilities == sorted(probabilities, reverse=True)
     assert client.get(f"/v1/models/{model_id}/scenes/99").status_code == 404
+
+
+def test_distinctive_concepts_drop_what_every_context_shares(client: TestClient, model_id: str) -> None:
+    # Two rooms whose every object is also grasped: "grasp" is among the most probable concepts of
+    # both contexts, and the least distinctive.
+    rng = np.random.default_rng(5)
+    rooms = [[c for c in CONTEXT_CONCEPTS[room] if c != "grasp"] for room in ("kitchen", "playroom")]
+    for scene in range(24):
+        objects = [{"concepts": [*rng.choice(rooms[scene % 2], 3, replace=False), "grasp"]} for _ in range(3)]
+        assert client.post(f"/v1/models/{model_id}/scenes", json={"objects": objects}).status_code == 201
+    url = f"/v1/models/{model_id}/contexts"
+    by_probability = client.get(url, params={"top": 50, "lambda": 1.0}).json()
+    assert by_probability["relevance_weight"] == 1.0 and by_probability["context_count"] >= 2
+    for context in by_probability["contexts"]:  # at λ = 1 relevance ranks exactly as P(c | χ)
+        ranked = [(c["name"], c["probability"]) for c in context["distinctive_concepts"]]
+        assert ranked == [(c["name"], c["probability"]) for c in context["top_concepts"]]
+    by_lift = client.get(url, params={"top": 2, "lambda": 0.0}).json()
+    for context in by_lift["contexts"]:
+        if context["scene_count"] == 0:
+            continue
+        relevances = [c["relevance"] for c in context["distinctive_concepts"]]
+        assert relevances == sorted(relevances, reverse=True)
+        assert "grasp" not in {c["name"] for c in context["distinctive_concepts"]}
+        assert context["top_concepts"][0]["name"] == "grasp"
+    refused = client.get(url, params={"lambda": 1.5})
+    assert refused.status_code == 422 and refused.json()["field"] == "query.lambda"
 
 
 def test_stored_counts_match_the_stored_assignments_and_memory(

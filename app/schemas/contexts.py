@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pydantic import Field
+from pydantic import ConfigDict, Field
 
 from app.schemas.common import ReadSchema
 from app.schemas.scenes import ConceptKind
@@ -14,33 +14,47 @@ class ConceptProbability(ReadSchema):
     probability: float = Field(description="P(c | χ) (φ of the context).")
 
 
+class DistinctiveConcept(ConceptProbability):
+    relevance: float = Field(
+        description="LDAvis relevance λ log P(c | χ) + (1 − λ) log(P(c | χ) / P(c)) (Sievert & Shirley 2014)."
+    )
+
+
 class ContextRead(ReadSchema):
-    context: int = Field(description="Index of the context, 0 … K-1.")
+    context: int = Field(description="Index of the context, 0 … K-1; stable: a context keeps its index as K grows.")
     scene_count: int = Field(description="Learned scenes whose most probable context this is (current assignments).")
-    top_concepts: list[ConceptProbability]
+    top_concepts: list[ConceptProbability] = Field(description="The most probable concepts, by P(c | χ).")
+    distinctive_concepts: list[DistinctiveConcept] = Field(
+        description="The concepts that set this context apart, by relevance at the request's λ."
+    )
 
 
 class ContextsRead(ReadSchema):
-    model_config = {
-        "json_schema_extra": {
+    model_config = ConfigDict(
+        json_schema_extra={
             "examples": [
                 {
                     "model_id": "3f2c0b9e5d7a4e1f8a6b2c4d9e0f1a2b",
                     "context_count": 1,
                     "scene_count": 4,
+                    "relevance_weight": 0.6,
                     "contexts": [
                         {
                             "context": 0,
                             "scene_count": 4,
                             "top_concepts": [{"name": "cup", "kind": "noun", "probability": 0.21}],
+                            "distinctive_concepts": [
+                                {"name": "pour", "kind": "verb", "probability": 0.08, "relevance": -1.9}
+                            ],
                         }
                     ],
                 }
             ]
         }
-    }
+    )
 
     model_id: str
     context_count: int
     scene_count: int
+    relevance_weight: float = Field(description="The λ the distinctive concepts were ranked with.")
     contexts: list[ContextRead]

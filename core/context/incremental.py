@@ -52,7 +52,7 @@ from typing import Any, Literal
 import numpy as np
 
 from core.context.lda import LDAState, layout_problems
-from core.context.metrics import PAPER_RHO, contextual_entropy
+from core.context.metrics import PAPER_RHO, RELEVANCE_WEIGHT, concept_relevance, contextual_entropy
 from core.context.scene_partition import SceneBlocks, best_partition, corpus_centred_prior
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary
@@ -523,6 +523,20 @@ class IncrementalLDA:
         phi = self.concept_given_context()
         order = np.argsort(-phi, axis=1, kind="stable")[:, :k]
         return [[(self._vocabulary[w], float(phi[c, w])) for w in row] for c, row in enumerate(order)]
+
+    def distinctive_concepts(self, k: int, weight: float = RELEVANCE_WEIGHT) -> list[list[tuple[str, float, float]]]:
+        """The ``k`` concepts of each context with the highest relevance (λ = ``weight``,
+        :func:`metrics.concept_relevance`), as (name, P(c | χ), relevance); contexts weighted
+        by their token counts n_k (equally before any scene)."""
+        if not (isinstance(k, int) and k >= 1):
+            raise InvalidInputError("k", f"must be an integer >= 1, got {k!r}")
+        phi = self.concept_given_context()
+        tokens = self._state.n_k[: phi.shape[0]].astype(float)
+        relevance = concept_relevance(phi, tokens if tokens.sum() > 0 else np.ones_like(tokens), weight)
+        order = np.argsort(-relevance, axis=1, kind="stable")[:, :k]
+        return [
+            [(self._vocabulary[w], float(phi[c, w]), float(relevance[c, w])) for w in row] for c, row in enumerate(order)
+        ]
 
     def entropy(self, rho: float = PAPER_RHO) -> float:
         """H̃ of Eq. 8 over the learned scenes (see :func:`metrics.contextual_entropy`)."""

@@ -14,7 +14,9 @@ One object is one folder (docs/bridge.md has the full layout)::
             after.ply
             audio.wav          optional: any sample rate, mixed down to mono
 
-A scene is a folder of object folders (or one object folder alone). Files are
+A scene is a folder of object folders (or one object folder alone). ROS bags
+(:mod:`bridge.bags`) and yarpdatadumper sessions (:mod:`bridge.yarp`) are
+replayed too, with a mapping file (``--mapping``, :mod:`bridge.mapping`). Files are
 read with maintained readers: ``plyfile`` for PLY, ``pypcd4`` for PCD (ASCII,
 binary and binary_compressed), ``soundfile`` for WAV, ``numpy`` for CSV/NPY;
 each becomes a validated :mod:`core.payloads` object, so a bad file fails with
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +45,7 @@ from core.errors import InvalidInputError
 from core.payloads import Audio, FingerSeries, Interaction, ObjectRecording, PointCloud
 
 CLOUD_SUFFIXES = (".ply", ".pcd")
+FORMATS = ("auto", "folder", "bag", "yarp")
 LABELS_FILE = "object.json"
 
 
@@ -187,8 +191,19 @@ def _first(folder: Path, names: Sequence[str]) -> Path | None:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "paths", nargs="+", type=Path, help="scene folders (or object folders; labelled ones with --training)"
+        "paths",
+        nargs="+",
+        type=Path,
+        help="scene folders (or object folders; labelled ones with --training), ROS bags, yarpdatadumper sessions",
     )
+    parser.add_argument(
+        "--format",
+        choices=FORMATS,
+        default="auto",
+        help="auto: a .bag/.mcap/.db3 file or a folder with metadata.yaml is a bag, a folder of data.log+info.log "
+        "dumps is a yarp session, anything else a folder of recordings",
+    )
+    parser.add_argument("--mapping", type=Path, help="the TOML mapping file of a bag or yarp session (docs/bridge.md)")
     add_service_arguments(parser)
     parser.add_argument("--model-id", required=True, help="the model to post to")
     parser.add_argument("--training", action="store_true", help="post labelled objects as training objects, then fit")
@@ -200,6 +215,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    formats = {path: recording_format(path) if args.format == "auto" else args.format for path in args.paths}
+    if any(kind != "folder" for kind in formats.values()):
+        return _run_recordings(args, formats)
     rng = np.random.default_rng(args.seed)
     with Client(args.url, args.api_key, offline_queue=args.queue) as client:
         if args.training:
@@ -213,6 +231,52 @@ def run(args: argparse.Namespace) -> int:
         for path in args.paths:
             answer = replay_scene(client, args.model_id, path, rng=rng, scale=args.scale, max_points=args.max_points)
             print(f"{path}: {_describe(answer)}")
+    return 0
+
+
+def recording_format(path: Path) -> str:
+    """``bag``, ``yarp`` or ``folder``: what ``--format auto`` takes a path for."""
+    from bridge.bags import is_bag
+    from bridge.yarp import is_yarp_session
+
+    if is_bag(path):
+        return "bag"
+    return "yarp" if is_yarp_session(path) else "folder"
+
+
+def _run_recordings(args: argparse.Namespace, formats: dict[Path, str]) -> int:
+    """Replay bags and yarp sessions (mixed with folders, if given). Imported here: ``bridge.yarp`` reads
+    object folders with this module, and only a bag replay needs ``rosbags``."""
+    from bridge.bags import replay_bag
+    from bridge.mapping import read_mapping
+    from bridge.yarp import replay_yarp
+
+    if args.training:
+        print("contextweb bridge replay: --training takes object folders only", file=sys.stderr)
+        return 2
+    replayers = {"bag": replay_bag, "yarp": replay_yarp}
+    try:
+        if args.mapping is None:
+            raise InvalidInputError("--mapping", "is needed to replay a bag or a yarp session")
+        mapping = read_mapping(args.mapping)
+        with Client(args.url, args.api_key, offline_queue=args.queue) as client:
+            for path, kind in formats.items():
+                if kind == "folder":
+                    answer = replay_scene(
+                        client, args.model_id, path, rng=np.random.default_rng(args.seed), scale=args.scale,
+                        max_points=args.max_points,
+                    )  # fmt: skip
+                    print(f"{path}: {_describe(answer)}")
+                    continue
+                replayers[kind](
+                    client, args.model_id, path, mapping, seed=args.seed, max_points=args.max_points,
+                    on_answer=lambda scene, answer, path=path: print(
+                        f"{path} scene {scene.plan.index} ({len(scene.recordings)} objects): {_describe(answer)}"
+                    ),
+                )  # fmt: skip
+    except (InvalidInputError, ImportError) as error:
+        print(f"contextweb bridge replay: {error}", file=sys.stderr)
+        return 2
     return 0
 
 

@@ -4,10 +4,18 @@
   sweep against tomotopy's ``LDAModel`` (``workers=1``, priors fixed:
   ``optim_interval=0``) and the ``lda`` package, on the same synthetic corpora
   drawn from an LDA generative model: a small-vocabulary one like the paper's
-  (29 concepts, K = 3, scenes of 20–40 tokens) and a large one (2,000 words,
-  K = 50, documents of 100 tokens). Initialisation is excluded: tomotopy is timed
-  after ``train(0)``, ``lda`` as the difference between two fits of different
-  lengths, ours after a first sweep.
+  (29 concepts, K = 3, scenes of 20–40 tokens), a medium one (500 words, K = 20,
+  documents of 50–100 tokens) and a large one (2,000 words, K = 50, documents of
+  100 tokens). Ours with each sweep kernel (``LDAState.sweep(kernel=...)``: dense,
+  lanes, sparse) and with the one :func:`core.context.lda.sweep_kernel` chooses
+  for the corpus's K. Initialisation is excluded: tomotopy is timed after
+  ``train(0)``, ``lda`` as the difference between two fits of different lengths,
+  ours after a first sweep. Ratios by wall clock, and by CPU time (which leaves out
+  the time other processes held this shared machine's cores).
+- **Kernel crossover**: the three sweep kernels on one corpus shape (1,000 words,
+  documents of 50–100 tokens) for K from 16 to 200, after 20 dense sweeps, each
+  kernel's best of 7 single sweeps by CPU time, interleaved: where
+  ``sweep_kernel``'s thresholds come from.
 - **Context detection** of a 5-object scene of the paper's world
   (``IncrementalLDA.infer_scene``, fold-in with its default sweeps) by a model
   fitted on 50 scenes, median over many calls, against the paper's 209.82 ms and
@@ -37,6 +45,7 @@ import tomotopy as tp
 
 from bench import RESULTS
 from core.context import IncrementalLDA, LDAState
+from core.context.lda import SWEEP_KERNELS, sweep_kernel
 from core.paper_timings import CONTEXT_DETECTION_MS
 from core.world import WorldConfig, generate_scenes
 
@@ -61,27 +70,37 @@ def synthetic_corpus(
     return docs
 
 
-def ours_throughput(docs: list[np.ndarray], vocab_size: int, n_topics: int, sweeps: int) -> float:
+def timed(work: Callable[[], object]) -> tuple[float, float]:
+    """Seconds ``work()`` took: wall clock, and CPU time of this process (all its threads). On
+    a shared machine the CPU time leaves out the time other processes held the cores."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    work()
+    return time.perf_counter() - wall, time.process_time() - cpu
+
+
+def ours_throughput(
+    docs: list[np.ndarray], vocab_size: int, n_topics: int, sweeps: int, kernel: str
+) -> tuple[float, float]:
+    """Tokens × sweeps per second of ``LDAState.sweep`` with ``kernel``, by wall clock and by CPU time."""
     words = np.concatenate(docs)
     offsets = np.concatenate([[0], np.cumsum([len(d) for d in docs])]).astype(np.int32)
     state = LDAState.from_arrays(ALPHA, XI, vocab_size, n_topics, words, np.zeros_like(words), offsets)
     rng = np.random.default_rng(0)
     state.initialize_randomly(rng)
-    state.sweep(rng)
-    start = time.perf_counter()
-    state.sweep(rng, sweeps)
-    return words.shape[0] * sweeps / (time.perf_counter() - start)
+    state.sweep(rng, kernel=kernel)
+    seconds = timed(lambda: state.sweep(rng, sweeps, kernel=kernel))
+    return words.shape[0] * sweeps / seconds[0], words.shape[0] * sweeps / seconds[1]
 
 
-def tomotopy_throughput(docs: list[np.ndarray], n_topics: int, sweeps: int) -> float:
+def tomotopy_throughput(docs: list[np.ndarray], n_topics: int, sweeps: int) -> tuple[float, float]:
     model = tp.LDAModel(k=n_topics, alpha=ALPHA, eta=XI, seed=0)
     for doc in docs:
         model.add_doc([f"w{w}" for w in doc])
     model.optim_interval = 0
     model.train(0, workers=1)
-    start = time.perf_counter()
-    model.train(sweeps, workers=1)
-    return sum(len(d) for d in docs) * sweeps / (time.perf_counter() - start)
+    seconds = timed(lambda: model.train(sweeps, workers=1))
+    work = sum(len(d) for d in docs) * sweeps
+    return work / seconds[0], work / seconds[1]
 
 
 def lda_package_throughput(docs: list[np.ndarray], vocab_size: int, n_topics: int, sweeps: int) -> float:
@@ -96,6 +115,30 @@ def lda_package_throughput(docs: list[np.ndarray], vocab_size: int, n_topics: in
 
     short, long = fit(sweeps), fit(2 * sweeps)
     return sum(len(d) for d in docs) * sweeps / (long - short) if long > short else float("nan")
+
+
+def kernel_crossover(contexts: tuple[int, ...], n_docs: int, vocab_size: int = 1_000) -> dict[str, dict[str, float]]:
+    """Tokens per CPU second of one sweep with each kernel, from the same state, for each K."""
+    rows = {}
+    for n_topics in contexts:
+        docs = synthetic_corpus(n_docs, vocab_size, n_topics, (50, 100), 5)
+        words = np.concatenate(docs)
+        offsets = np.concatenate([[0], np.cumsum([len(d) for d in docs])]).astype(np.int32)
+        start = LDAState.from_arrays(ALPHA, XI, vocab_size, n_topics, words, np.zeros_like(words), offsets)
+        rng = np.random.default_rng(0)
+        start.initialize_randomly(rng)
+        start.sweep(rng, 20, kernel="dense")
+        states = {
+            kernel: LDAState.from_arrays(ALPHA, XI, vocab_size, n_topics, words, start.assignments.copy(), offsets)
+            for kernel in SWEEP_KERNELS
+        }
+        best = dict.fromkeys(SWEEP_KERNELS, float("inf"))
+        for _ in range(7):
+            for kernel, state in states.items():
+                best[kernel] = min(best[kernel], timed(lambda s=state, k=kernel, r=rng: s.sweep(r, kernel=k))[1])
+        rows[str(n_topics)] = {kernel: words.shape[0] / seconds for kernel, seconds in best.items()}
+        rows[str(n_topics)]["chosen"] = sweep_kernel(n_topics)
+    return rows
 
 
 def median_us(work: Callable[[int], object], calls: int) -> float:
@@ -160,26 +203,36 @@ def main() -> dict:
     sweeps, large_docs, calls, updates = (10, 2_000, 100, 100) if args.quick else (50, 20_000, 1_000, 500)
     corpora = {
         "small (29 words, K=3)": (synthetic_corpus(2_000, 29, 3, (20, 40), 0), 29, 3),
+        "medium (500 words, K=20)": (synthetic_corpus(large_docs // 2, 500, 20, (50, 100), 2), 500, 20),
         "large (2000 words, K=50)": (synthetic_corpus(large_docs, 2_000, 50, (100, 100), 1), 2_000, 50),
     }
     throughput = {}
     for name, (docs, vocab_size, n_topics) in corpora.items():
-        ours = ours_throughput(docs, vocab_size, n_topics, sweeps)
+        by_kernel = {kernel: ours_throughput(docs, vocab_size, n_topics, sweeps, kernel) for kernel in SWEEP_KERNELS}
         tomotopy = tomotopy_throughput(docs, n_topics, sweeps)
         lda_package = lda_package_throughput(docs, vocab_size, n_topics, max(10, sweeps // 5))
+        chosen = sweep_kernel(n_topics)
+        ours = by_kernel[chosen][0]
         throughput[name] = {
             "tokens": int(sum(len(d) for d in docs)),
+            "kernel": chosen,
             "ours_tokens_sweeps_per_s": ours,
-            "tomotopy_tokens_sweeps_per_s": tomotopy,
+            **{f"{kernel}_tokens_sweeps_per_s": wall for kernel, (wall, _) in by_kernel.items()},
+            **{f"ratio_{kernel}_over_tomotopy": wall / tomotopy[0] for kernel, (wall, _) in by_kernel.items()},
+            **{f"ratio_{kernel}_over_tomotopy_cpu_time": cpu / tomotopy[1] for kernel, (_, cpu) in by_kernel.items()},
+            "tomotopy_tokens_sweeps_per_s": tomotopy[0],
+            "tomotopy_tokens_sweeps_per_s_cpu_time": tomotopy[1],
             "lda_package_tokens_sweeps_per_s": lda_package,
-            "ratio_ours_over_tomotopy": ours / tomotopy,
+            "ratio_ours_over_tomotopy": ours / tomotopy[0],
             "ratio_ours_over_lda_package": ours / lda_package,
         }
+    crossover = kernel_crossover((16, 32, 128) if args.quick else (16, 24, 32, 40, 50, 100, 128, 150, 200), 4_000)
     sizes = (1_000, 10_000) if args.quick else (1_000, 100_000)
     updates_by_size = online(sizes, updates)
     medians = [updates_by_size[str(size)]["median_us"] for size in sizes]
     result = {
         "throughput": throughput,
+        "kernel_crossover_tokens_per_cpu_s": crossover,
         "detection_5_objects": detection(calls),
         "online_update": updates_by_size,
         "online_median_ratio_largest_over_smallest": medians[-1] / medians[0],
@@ -190,9 +243,24 @@ def main() -> dict:
     (RESULTS / "context.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
     for name, row in throughput.items():
         print(
-            f"{name:>26}: ours {row['ours_tokens_sweeps_per_s'] / 1e6:6.1f} M tok·sweep/s, "
+            f"{name:>26}: ours ({row['kernel']}) {row['ours_tokens_sweeps_per_s'] / 1e6:6.1f} M tok·sweep/s, "
             f"tomotopy {row['tomotopy_tokens_sweeps_per_s'] / 1e6:6.1f} M ({row['ratio_ours_over_tomotopy']:.2f}x), "
             f"lda {row['lda_package_tokens_sweeps_per_s'] / 1e6:6.1f} M ({row['ratio_ours_over_lda_package']:.2f}x)"
+        )
+        print(
+            f"{'':>26}  by kernel: "
+            + ", ".join(
+                f"{kernel} {row[f'{kernel}_tokens_sweeps_per_s'] / 1e6:.1f} M "
+                f"({row[f'ratio_{kernel}_over_tomotopy']:.2f}x; CPU time {row[f'ratio_{kernel}_over_tomotopy_cpu_time']:.2f}x)"
+                for kernel in SWEEP_KERNELS
+            )
+        )
+    for n_topics, row in crossover.items():
+        fastest = max(SWEEP_KERNELS, key=lambda kernel: row[kernel])
+        print(
+            f"{'kernels at K=' + n_topics:>26}: "
+            + ", ".join(f"{kernel} {row[kernel] / 1e6:.1f} M" for kernel in SWEEP_KERNELS)
+            + f" per CPU s (fastest {fastest}, chosen {row['chosen']})"
         )
     found = result["detection_5_objects"]
     print(

@@ -84,6 +84,98 @@ def sweep_documents(
             inverse[new] = 1.0 / (n_k[new] + v_xi)
 
 
+LANES = 8
+"""Contexts k, k + 8, k + 16, ... form one lane of :func:`sweep_documents_by_lanes`."""
+
+
+@numba.njit(cache=True, nogil=True)
+def sweep_documents_by_lanes(
+    words: np.ndarray,
+    z: np.ndarray,
+    doc_offsets: np.ndarray,
+    first_doc: int,
+    stop_doc: int,
+    n_wk: np.ndarray,
+    n_k: np.ndarray,
+    n_dk: np.ndarray,
+    n_contexts: int,
+    alpha: float,
+    xi: float,
+    vocab_size: int,
+    uniforms: np.ndarray,
+) -> None:
+    """:func:`sweep_documents` for many contexts: the same Eq. 5 conditional, its cumulative
+    sum taken in :data:`LANES` interleaved lanes instead of one running sum.
+
+    Context k's weight is ``(n_wk + ξ) · c_k`` with ``c_k = (n_dk + α) / (n_k + |W|ξ)`` kept
+    per scene (two entries change per token). The weights are computed in one pass the
+    compiler vectorises; the eight lane sums grow independently (one running sum chains K
+    additions, each waiting for the one before); the draw ``u · Σ_k`` picks a lane, then a
+    context within it. Same distribution as :func:`sweep_documents` (the order in which the
+    contexts are laid out on [0, 1) differs, so the same ``u`` can give another context),
+    one uniform per token.
+    """
+    v_xi = vocab_size * xi
+    depth = (n_contexts + LANES - 1) // LANES
+    last_lane = min(LANES, n_contexts) - 1
+    inverse = _inverse_totals(n_k, n_contexts, v_xi)
+    weights = np.zeros(depth * LANES)  # entries from n_contexts on stay 0
+    lane_mass = np.empty(LANES)
+    coefficient = np.empty(n_contexts)
+    u_index = 0
+    for d in range(first_doc, stop_doc):
+        for k in range(n_contexts):
+            coefficient[k] = (n_dk[d, k] + alpha) * inverse[k]
+        for i in range(doc_offsets[d], doc_offsets[d + 1]):
+            w = words[i]
+            old = z[i]
+            n_wk[w, old] -= 1
+            n_k[old] -= 1
+            n_dk[d, old] -= 1
+            inverse[old] = 1.0 / (n_k[old] + v_xi)
+            coefficient[old] = (n_dk[d, old] + alpha) * inverse[old]
+            for k in range(n_contexts):
+                weights[k] = (n_wk[w, k] + xi) * coefficient[k]
+            mass_0 = mass_1 = mass_2 = mass_3 = mass_4 = mass_5 = mass_6 = mass_7 = 0.0
+            for j in range(0, depth * LANES, LANES):
+                mass_0 += weights[j]
+                mass_1 += weights[j + 1]
+                mass_2 += weights[j + 2]
+                mass_3 += weights[j + 3]
+                mass_4 += weights[j + 4]
+                mass_5 += weights[j + 5]
+                mass_6 += weights[j + 6]
+                mass_7 += weights[j + 7]
+            lane_mass[0], lane_mass[1], lane_mass[2], lane_mass[3] = mass_0, mass_1, mass_2, mass_3
+            lane_mass[4], lane_mass[5], lane_mass[6], lane_mass[7] = mass_4, mass_5, mass_6, mass_7
+            total = ((mass_0 + mass_1) + (mass_2 + mass_3)) + ((mass_4 + mass_5) + (mass_6 + mass_7))
+            target = uniforms[u_index] * total
+            u_index += 1
+            # Branch-free: count the lane boundaries and then the lane's steps that ``target`` passes.
+            lane = 0
+            below = 0.0
+            cumulative = 0.0
+            for m in range(LANES - 1):
+                cumulative += lane_mass[m]
+                passed = cumulative <= target
+                lane += passed
+                below = cumulative if passed else below
+            lane = min(lane, last_lane)
+            target -= below
+            steps = 0
+            cumulative = 0.0
+            for m in range(depth - 1):
+                cumulative += weights[lane + m * LANES]
+                steps += cumulative <= target
+            new = lane + min(steps, (n_contexts - 1 - lane) // LANES) * LANES  # rounding never lands past K
+            z[i] = new
+            n_wk[w, new] += 1
+            n_k[new] += 1
+            n_dk[d, new] += 1
+            inverse[new] = 1.0 / (n_k[new] + v_xi)
+            coefficient[new] = (n_dk[d, new] + alpha) * inverse[new]
+
+
 @numba.njit(cache=True, nogil=True)
 def sample_tokens(
     tokens: np.ndarray,

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from core.context import _gibbs_kernels as kernels
+from core.context import _sparse_kernels as sparse_kernels
 from core.context.metrics import dirichlet_multinomial_log_likelihood
 from core.errors import InvalidInputError
 
@@ -30,6 +31,31 @@ _INITIAL_TOKENS = 256
 _INITIAL_DOCUMENTS = 16
 _INITIAL_WORDS = 32
 _INITIAL_CONTEXTS = 4
+
+SWEEP_KERNELS = {
+    "dense": kernels.sweep_documents,
+    "lanes": kernels.sweep_documents_by_lanes,
+    "sparse": sparse_kernels.sweep_documents_sparse,
+}
+"""Gibbs sweeps of Eq. 5 with the same arguments and one uniform per token; same stationary
+distribution, but each maps a given uniform to its own context (docs/context.md, "Sweep kernels")."""
+
+LANES_FROM_CONTEXTS = 32
+"""K from which :func:`sweep_kernel` picks ``"lanes"`` (measured crossover with ``"dense"``)."""
+
+SPARSE_FROM_CONTEXTS = 128
+"""K from which :func:`sweep_kernel` picks ``"sparse"`` (measured crossover with ``"lanes"``)."""
+
+
+def sweep_kernel(n_contexts: int) -> str:
+    """The fastest sweep kernel for K contexts, measured: ``"dense"`` below :data:`LANES_FROM_CONTEXTS`
+    (every model of the paper's experiments and of the service's default ``max_contexts`` = 10
+    lives there, so their chains are those of the dense sweep), ``"lanes"`` from it, ``"sparse"``
+    from :data:`SPARSE_FROM_CONTEXTS`. A function of K alone, so a restored model sweeps with the
+    kernel it had and continues bit-identically."""
+    if n_contexts >= SPARSE_FROM_CONTEXTS:
+        return "sparse"
+    return "lanes" if n_contexts >= LANES_FROM_CONTEXTS else "dense"
 
 
 def _with_capacity(array: np.ndarray, rows: int, columns: int | None = None) -> np.ndarray:
@@ -238,11 +264,15 @@ class LDAState:
         self.assignments[:] = rng.integers(0, self.n_contexts, size=self.n_tokens, dtype=np.int32)
         self.recount()
 
-    def sweep(self, rng: np.random.Generator, sweeps: int = 1, first_doc: int = 0) -> None:
-        """``sweeps`` Gibbs sweeps over every token of scenes ``first_doc:``, scene by scene (Eq. 5)."""
+    def sweep(self, rng: np.random.Generator, sweeps: int = 1, first_doc: int = 0, kernel: str | None = None) -> None:
+        """``sweeps`` Gibbs sweeps over every token of scenes ``first_doc:``, scene by scene (Eq. 5),
+        with ``kernel`` (a key of :data:`SWEEP_KERNELS`; by default :func:`sweep_kernel` of K)."""
+        chosen = sweep_kernel(self.n_contexts) if kernel is None else kernel
+        if chosen not in SWEEP_KERNELS:
+            raise InvalidInputError("kernel", f"must be one of {sorted(SWEEP_KERNELS)}, got {kernel!r}")
         n_uniforms = self.n_tokens - int(self._offsets[first_doc])
         for _ in range(sweeps):
-            kernels.sweep_documents(*self._window_arguments(first_doc), self._draw_uniforms(rng, n_uniforms))
+            SWEEP_KERNELS[chosen](*self._window_arguments(first_doc), self._draw_uniforms(rng, n_uniforms))
 
     def _window_arguments(self, first_doc: int) -> tuple:
         """What a kernel over scenes ``first_doc:`` takes: corpus, scene range, counts, K, α, ξ, |W|."""

@@ -69,6 +69,12 @@ def _build_models(parser: argparse.ArgumentParser) -> None:
     models_cli.add_arguments(parser)
 
 
+def _build_keys(parser: argparse.ArgumentParser) -> None:
+    from app import keys_cli
+
+    keys_cli.add_arguments(parser)
+
+
 def _build_report(parser: argparse.ArgumentParser) -> None:
     from core.experiments import report
 
@@ -108,6 +114,7 @@ COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
     "prototypes": ("the concept prototypes of Table VIII", _build_prototypes),
     "bridge": ("feed a running service: simulate the iCub world, replay recordings", _build_bridge),
     "models": ("check the stored models against the storage invariants, repair their counts", _build_models),
+    "keys": ("create, list and revoke the API keys of robots and dashboards", _build_keys),
 }
 
 

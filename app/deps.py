@@ -18,41 +18,43 @@ exit), and the scene route is the hot path.
 from __future__ import annotations
 
 import logging
-import secrets
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, TypeVar
 
 import anyio
 from fastapi import Depends, Path, Security
 from fastapi.security import APIKeyHeader
-from pydantic import SecretStr
 from sqlalchemy.orm import Session
-from starlette.requests import HTTPConnection
+from starlette.requests import HTTPConnection, Request
 
+from app.admission import Admission, client_identity
+from app.auth import Principal, authenticate, authorise
 from app.errors import (
-    Forbidden,
     ModelNotFound,
     ModelUnavailable,
-    StorageUnavailable,
     Unauthorized,
+    is_storage_busy,
     is_storage_failure,
+    storage_error,
     storage_failure_reason,
 )
 from app.registry import ModelRuntime, catch_up
+from app.schemas.keys import Role
 from app.state import AppState
 from storage.repositories import feed as feed_repository
 from storage.repositories import incremental_lda as lda_repository
 from storage.unit_of_work import unit_of_work
 
 logger = logging.getLogger("contextweb")
+T = TypeVar("T")
 
 API_KEY_HEADER = "X-API-Key"
 _api_key = APIKeyHeader(
     name=API_KEY_HEADER,
     auto_error=False,
-    description="CONTEXTWEB_WRITE_KEY (robots) or CONTEXTWEB_READ_KEY (dashboards); not needed when none is configured.",
+    description="A key of `/v1/keys` (`cw_…`), or CONTEXTWEB_WRITE_KEY / CONTEXTWEB_READ_KEY; not needed when none is set.",
 )
 
 
@@ -64,40 +66,38 @@ async def get_state(connection: HTTPConnection) -> AppState:
 StateDep = Annotated[AppState, Depends(get_state)]
 
 
-def access_level(state: AppState, key: str | None) -> str | None:
-    """``"write"``, ``"read"`` or None (no valid key); everything is ``"write"`` when no key is configured."""
-    settings = state.settings
-    if not settings.auth_enabled:
-        return "write"
-    if not key:  # an empty key never matches, whatever is configured
-        return None
-    presented = key.encode("utf-8", "surrogateescape")  # any header value; compared as bytes in constant time
-    if settings.write_key is not None and secrets.compare_digest(presented, _key_bytes(settings.write_key)):
-        return "write"
-    if settings.read_key is not None and secrets.compare_digest(presented, _key_bytes(settings.read_key)):
-        return "read"
-    return None
-
-
-def _key_bytes(key: SecretStr) -> bytes:
-    return key.get_secret_value().encode("utf-8")
-
-
-async def require_read_key(state: StateDep, key: Annotated[str | None, Security(_api_key)]) -> None:
-    if access_level(state, key) is None:
+async def _principal(connection: HTTPConnection, state: AppState, key: str | None, role: Role) -> Principal:
+    """The caller, allowed ``role`` on the path's model (app/auth.py has the rules)."""
+    principal = await authenticate(state.settings, state.read_sessions, key)
+    if principal is None:
         raise Unauthorized()
+    authorise(principal, role, connection.path_params.get("model_id"))
+    return principal
 
 
-async def require_write_key(state: StateDep, key: Annotated[str | None, Security(_api_key)]) -> None:
-    level = access_level(state, key)
-    if level is None:
-        raise Unauthorized()
-    if level != "write":
-        raise Forbidden()
+async def read_access(
+    connection: HTTPConnection, state: StateDep, key: Annotated[str | None, Security(_api_key)]
+) -> Principal:
+    return await _principal(connection, state, key, "read")
 
 
-ReadAccess = Depends(require_read_key)
-WriteAccess = Depends(require_write_key)
+async def write_access(
+    connection: HTTPConnection, state: StateDep, key: Annotated[str | None, Security(_api_key)]
+) -> Principal:
+    return await _principal(connection, state, key, "write")
+
+
+async def admin_access(
+    connection: HTTPConnection, state: StateDep, key: Annotated[str | None, Security(_api_key)]
+) -> Principal:
+    return await _principal(connection, state, key, "admin")
+
+
+ReadAccess = Depends(read_access)
+WriteAccess = Depends(write_access)
+AdminAccess = Depends(admin_access)
+#: The caller of a read route (FastAPI solves ``ReadAccess`` once per request, however often it is named).
+ReadPrincipal = Annotated[Principal, ReadAccess]
 
 ModelId = Annotated[
     str, Path(description="The model's id.", max_length=64, examples=["3f2c0b9e5d7a4e1f8a6b2c4d9e0f1a2b"])
@@ -121,6 +121,33 @@ async def known_model(model_id: ModelId, state: StateDep) -> ModelRuntime:
 
 ModelDep = Annotated[ModelRuntime, Depends(current_model)]
 WriteModelDep = Annotated[ModelRuntime, Depends(known_model)]
+
+
+async def get_admission(connection: HTTPConnection) -> Admission:
+    """The lifespan's admission control (app/admission.py)."""
+    return connection.state.admission
+
+
+AdmissionDep = Annotated[Admission, Depends(get_admission)]
+
+
+async def limit_write_rate(connection: HTTPConnection, admission: AdmissionDep) -> None:
+    """A token of the client's bucket, or a 429 ``rate_limited``. List it after the key check, so that
+    only clients with a valid key get a bucket. The header's bytes as sent (Starlette decodes latin-1)."""
+    key = connection.headers.get(API_KEY_HEADER)
+    address = connection.client.host if connection.client else None
+    admission.check_rate(client_identity(None if key is None else key.encode("latin-1"), address))
+
+
+WriteRate = Depends(limit_write_rate)
+
+
+async def body_size(request: Request) -> int:
+    """The request body's length in bytes (already read and cached by FastAPI: no second read)."""
+    return len(await request.body())
+
+
+BodySizeDep = Annotated[int, Depends(body_size)]
 
 
 def read_session(state: StateDep) -> Iterator[Session]:
@@ -161,7 +188,12 @@ def model_write(state: AppState, model: ModelRuntime) -> Iterator[ModelWrite]:
     rows written since; the write runs; the version is bumped and the other processes notified;
     then the commit. Memory follows the database: if anything fails once memory may hold the
     write, the model is marked unavailable and reloaded from one snapshot (at once if the
-    database answers, else on a later request); a storage failure is a 503 ``storage_unavailable``.
+    database answers, else on a later request); a storage failure is a 503 ``storage_unavailable``,
+    or ``storage_busy`` when the database's lock stayed held elsewhere past the busy timeout (that
+    wait is the transaction's first statement: memory is untouched then, and nothing is reloaded).
+
+    Call it on a worker thread admitted by ``Admission.run_write`` (app/admission.py): then no other
+    write of this process waits on ``model.lock``, only the reads that need it for a moment.
     """
     with model.lock:
         if model.deleted:
@@ -186,15 +218,23 @@ def model_write(state: AppState, model: ModelRuntime) -> Iterator[ModelWrite]:
                 model.version = write.version
             state.storage.record_success()
         except BaseException as error:
-            if is_storage_failure(error):
+            failed = is_storage_failure(error)
+            if failed and not is_storage_busy(error):  # a lock held elsewhere says nothing of the database's health
                 state.storage.record_failure(storage_failure_reason(error))
             if model.changing:
                 _restore(state, model, error)
-            if is_storage_failure(error):
-                raise StorageUnavailable(storage_failure_reason(error)) from error
+            if failed:
+                raise storage_error(error) from error
             raise
         finally:
             model.changing = False
+
+
+def write_model(state: AppState, model: ModelRuntime, work: Callable[[Session], T]) -> T:
+    """``work(session)`` as one unit of work of ``model`` (:func:`model_write`): what a route hands to
+    ``Admission.run_write`` when its service needs nothing else of :class:`ModelWrite`."""
+    with model_write(state, model) as write:
+        return work(write.session)
 
 
 def _catch_up_for_write(state: AppState, session: Session, model: ModelRuntime) -> None:

@@ -12,6 +12,7 @@ route is a 503 ``storage_unavailable`` with ``Retry-After``.
 
 from __future__ import annotations
 
+import sqlite3
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -106,8 +107,16 @@ class Forbidden(ContextwebError):
     error = "forbidden"
     status_code = 403
 
-    def __init__(self) -> None:
-        super().__init__("the read key cannot use a write route", field="header.X-API-Key")
+    def __init__(self, message: str = "the read key cannot use a write route") -> None:
+        super().__init__(message, field="header.X-API-Key")
+
+
+class KeyNotFound(ContextwebError):
+    error = "key_not_found"
+    status_code = 404
+
+    def __init__(self, key_id: str) -> None:
+        super().__init__(f"no API key {key_id!r}", field="path.key_id")
 
 
 class PayloadTooLarge(ContextwebError):
@@ -116,6 +125,18 @@ class PayloadTooLarge(ContextwebError):
 
     def __init__(self, limit: int) -> None:
         super().__init__(f"the request body exceeds {limit} bytes (CONTEXTWEB_MAX_BODY_BYTES)", field="body")
+
+
+class RequestTimeout(ContextwebError):
+    """The request body did not arrive in time (a slow or stalled client); the connection is closed."""
+
+    error = "request_timeout"
+    status_code = 408
+
+    def __init__(self, seconds: float) -> None:
+        super().__init__(
+            f"the request body did not arrive within {seconds:g} s (CONTEXTWEB_BODY_READ_TIMEOUT_SECONDS)", field="body"
+        )
 
 
 class ServiceUnavailable(ContextwebError):
@@ -140,6 +161,17 @@ class StorageUnavailable(ServiceUnavailable):
         super().__init__(f"storage unavailable: {reason}; nothing was changed, retry later", retry_after)
 
 
+class StorageBusy(ServiceUnavailable):
+    """The database's write lock stayed held by another transaction longer than the busy timeout
+    (SQLite ``CONTEXTWEB_SQLITE_BUSY_TIMEOUT_MS``, PostgreSQL ``lock_timeout``): transient, the
+    database itself is fine, so it does not make the service unready."""
+
+    error = "storage_busy"
+
+    def __init__(self, reason: str, retry_after: int = 1) -> None:
+        super().__init__(f"storage busy: {reason}; nothing was changed, retry later", retry_after)
+
+
 class ModelUnavailable(ServiceUnavailable):
     """The model's memory could not be proven equal to the database: it is reloaded before it serves again."""
 
@@ -147,6 +179,37 @@ class ModelUnavailable(ServiceUnavailable):
 
     def __init__(self, model_id: str, reason: str, retry_after: int = 1) -> None:
         super().__init__(f"model {model_id!r} is unavailable: {reason}", retry_after)
+
+
+class TooManyRequests(ContextwebError):
+    """A 429 the client should retry after ``retry_after`` seconds (app/admission.py)."""
+
+    status_code = 429
+
+    def __init__(self, message: str, retry_after: int) -> None:
+        super().__init__(message)
+        self.retry_after = retry_after
+
+    def headers(self) -> dict[str, str]:
+        return {"Retry-After": str(self.retry_after)}
+
+
+class ModelBusy(TooManyRequests):
+    """The model's queue of waiting writes is full (``CONTEXTWEB_MODEL_WRITE_QUEUE``)."""
+
+    error = "model_busy"
+
+    def __init__(self, model_id: str, waiting: int, retry_after: int) -> None:
+        super().__init__(f"model {model_id!r} already has {waiting} write(s) waiting; retry later", retry_after)
+
+
+class RateLimited(TooManyRequests):
+    """The client's token bucket is empty (``CONTEXTWEB_RATE_LIMIT_PER_SECOND``, ``..._BURST``)."""
+
+    error = "rate_limited"
+
+    def __init__(self, rate: float, burst: int, retry_after: int) -> None:
+        super().__init__(f"more than {burst} writes at once or {rate:g} a second from this client", retry_after)
 
 
 class NotReady(ContextwebError):
@@ -239,12 +302,28 @@ def is_storage_failure(exc: BaseException) -> bool:
     )
 
 
+def is_storage_busy(exc: BaseException) -> bool:
+    """A lock wait that ran out: SQLite's busy timeout (SQLITE_BUSY, "database is locked") or
+    PostgreSQL's ``lock_timeout`` (SQLSTATE 55P03)."""
+    original = getattr(exc, "orig", None) or exc
+    if isinstance(original, sqlite3.OperationalError):
+        return getattr(original, "sqlite_errorcode", 0) & 0xFF == sqlite3.SQLITE_BUSY
+    return getattr(original, "sqlstate", None) == "55P03"
+
+
+def storage_error(exc: BaseException) -> ServiceUnavailable:
+    """The 503 of a storage failure: ``storage_busy`` for a lock wait that ran out, else ``storage_unavailable``."""
+    if is_storage_busy(exc):
+        return StorageBusy(storage_failure_reason(exc))
+    return StorageUnavailable(storage_failure_reason(exc))
+
+
 async def _storage_error(_request: Request, exc: Exception) -> JSONResponse:
     """A database failure that reached a route: a 503 to retry, never a bare 500 (app/deps.py has
     already made sure no memory leads the database)."""
     if not is_storage_failure(exc):
         raise exc
-    error = StorageUnavailable(storage_failure_reason(exc))
+    error = storage_error(exc)
     return error_response(error.error, error.message, error.status_code, headers=error.headers())
 
 

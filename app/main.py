@@ -4,7 +4,8 @@ On start the lifespan creates the engine and the session makers, migrates the
 database to the latest schema, reloads every model into memory, warms up the
 numba kernels of a scene request and freezes start-up's objects out of the
 garbage collector (app/services/warmup.py), binds the websocket hub to the event
-loop and starts the scene feed (app/feed.py); on stop it stops the feed, closes
+loop and starts the scene feed (app/feed.py) and the check that closes revoked keys' streams
+(app/auth.py); on stop it stops them, closes
 the dashboards' sockets and disposes of the engine.
 """
 
@@ -23,11 +24,14 @@ from fastapi.staticfiles import StaticFiles
 from prometheus_client import CollectorRegistry
 from prometheus_fastapi_instrumentator import Instrumentator
 
+from app.admission import Admission, RefuseBusyWrites, admission_of
+from app.auth import close_revoked_streams
 from app.errors import InvalidInput, ModelUnavailable, StorageUnavailable, add_exception_handlers, error_responses
 from app.feed import SceneFeed
-from app.middleware import BodySizeLimit, memoise_route_metrics
+from app.middleware import RequestBodyLimits, memoise_route_metrics
 from app.registry import ModelRegistry
-from app.routers import contexts, health, models, plans, scenes, stream, training
+from app.routers import contexts, health, keys, models, plans, scenes, stream, training
+from app.services.limits import VocabularyLimits
 from app.services.warmup import freeze_start_up_objects, warm_up_kernels
 from app.settings import Settings
 from app.state import AppState
@@ -50,6 +54,7 @@ See docs/api.md for the request and response shapes, docs/stream.md for the webs
 
 class LifespanState(TypedDict):
     contextweb: AppState
+    admission: Admission
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -60,11 +65,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(_app: FastAPI) -> AsyncIterator[LifespanState]:
         anyio.to_thread.current_default_thread_limiter().total_tokens = settings.worker_threads
         state = await anyio.to_thread.run_sync(_start, settings)
+        admission = admission_of(settings)
         state.hub.bind(asyncio.get_running_loop())
         state.feed.start()
+        revocations = asyncio.create_task(close_revoked_streams(state.hub, state.read_sessions))
         try:
-            yield {"contextweb": state}
+            yield {"contextweb": state, "admission": admission}
         finally:
+            revocations.cancel()
             await anyio.to_thread.run_sync(state.feed.stop)
             state.hub.close_everyone("server shutting down")
             state.engine.dispose()
@@ -76,10 +84,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
     )
     add_exception_handlers(app)
-    app.add_middleware(BodySizeLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(RefuseBusyWrites)  # inside the body limits: the body it drops is counted and timed by them
+    app.add_middleware(
+        RequestBodyLimits,
+        max_bytes=settings.max_body_bytes,
+        read_timeout_seconds=settings.body_read_timeout_seconds,
+    )
     app.include_router(health.router)
     for router in (models.router, training.router, scenes.router, contexts.router, plans.router):
         app.include_router(router, responses=error_responses(InvalidInput, StorageUnavailable, ModelUnavailable))
+    app.include_router(keys.router, responses=error_responses(InvalidInput, StorageUnavailable))
     app.include_router(stream.router)
     Instrumentator(registry=CollectorRegistry(), excluded_handlers=["/metrics"]).instrument(app).expose(
         app, endpoint="/metrics", tags=["health"], summary="Prometheus metrics"
@@ -96,6 +110,7 @@ def _start(settings: Settings) -> AppState:
         settings.resolved_database_url,
         sqlite_synchronous=settings.sqlite_synchronous,
         pool_size=settings.database_pool_size,
+        sqlite_busy_timeout_ms=settings.sqlite_busy_timeout_ms,
     )
     upgrade_to_head(engine)
     read_sessions, write_sessions = create_session_makers(engine)
@@ -105,7 +120,7 @@ def _start(settings: Settings) -> AppState:
         engine=engine,
         read_sessions=read_sessions,
         write_sessions=write_sessions,
-        registry=ModelRegistry(read_sessions),
+        registry=ModelRegistry(read_sessions, VocabularyLimits.from_settings(settings)),
         hub=hub,
         feed=SceneFeed(hub, engine, read_sessions),
     )

@@ -1,58 +1,186 @@
-"""ASGI middleware: the body size limit, and the Prometheus middleware with its route names memoised.
+"""ASGI middleware: the request body's limits, and the Prometheus middleware with its route names memoised.
 
-:class:`BodySizeLimit` refuses request bodies above ``CONTEXTWEB_MAX_BODY_BYTES``
-with a 413 before parsing them: a declared ``Content-Length`` over the limit is
-answered at once; a chunked body is counted as it streams in and cut off as soon
-as it passes the limit.
+:class:`RequestBodyLimits` reads every HTTP request body before the routes see it
+and answers in the documented error shape (``field: "body"``) when it is
+unacceptable, so that no such body reaches the JSON parser:
+
+- over ``CONTEXTWEB_MAX_BODY_BYTES``: 413 ``payload_too_large``, at once for a
+  declared ``Content-Length``, as soon as the count passes the limit for a chunked body;
+- not complete within ``CONTEXTWEB_BODY_READ_TIMEOUT_SECONDS`` of the request's
+  start: 408 ``request_timeout`` (a client that stalls must not hold a connection,
+  a task and its buffer forever);
+- a JSON body in another encoding than UTF-8 (a declared ``charset`` or UTF-16/32
+  bytes, which Python's parser would otherwise detect and accept), nested deeper than
+  :data:`MAX_JSON_DEPTH` or with a number longer than :data:`MAX_NUMBER_LENGTH`
+  characters: 422 ``invalid_input``. Python's parser answers the last two with a
+  ``RecursionError`` or an int conversion error (a 400 outside the contract), and a
+  5,000-digit integer costs quadratic time to convert.
+
+413 and 408 close the connection (``Connection: close``): the rest of the body is
+not worth reading. Reading the whole body here costs nothing extra, as the routes
+read it whole anyway; the JSON checks cost 5–15 µs on a typical scene (docs/api.md, "Limits").
 """
 
 from __future__ import annotations
 
+import email.message
+import json
 import threading
 from collections import OrderedDict
+from itertools import accumulate
 
+import anyio
 from fastapi import FastAPI
 from prometheus_fastapi_instrumentator.middleware import PrometheusInstrumentatorMiddleware
-from starlette.exceptions import HTTPException
 from starlette.middleware import Middleware
 from starlette.requests import Request
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from app.errors import PayloadTooLarge, error_response
+from app.errors import ContextwebError, InvalidInput, PayloadTooLarge, RequestTimeout, error_response
+
+#: Deepest nesting of arrays and objects a JSON body may have. The deepest request
+#: (a raw scene's interaction points) nests 10 levels; 32 leaves room and keeps every
+#: parse far from Python's recursion limit.
+MAX_JSON_DEPTH = 32
+#: Longest number of a JSON body, in characters. A float64 needs at most 24
+#: (17 significant digits, sign, point, exponent), an int64 20; 100 allows any
+#: serialiser's padding, and stops the quadratic conversion of huge integers.
+MAX_NUMBER_LENGTH = 100
+
+_NOT_BRACKETS = bytes(byte for byte in range(256) if byte not in b"[]{}")
+_BRACKET_STEP = tuple(1 if byte in b"[{" else -1 if byte in b"]}" else 0 for byte in range(256))
+_NUMBER_CHARACTERS = bytes(ord("0") if byte in b"+-.0123456789Ee" else ord(" ") for byte in range(256))
+_TOO_LONG_NUMBER = b"0" * (MAX_NUMBER_LENGTH + 1)
+_UTF8 = frozenset({"utf-8", "utf8"})
 
 
-class BodySizeLimit:
-    """Pure ASGI middleware (no response buffering, no effect on websockets)."""
+def json_body_problem(body: bytes) -> str | None:
+    """Why a JSON body is refused before parsing (encoding, depth, number length), or None.
 
-    def __init__(self, app: ASGIApp, max_bytes: int) -> None:
+    Linear and in C loops (bytes methods, ``translate``, ``accumulate``): the text outside
+    strings is found by dropping escaped backslashes and quotes, then splitting at the
+    quotes. On a body that is not JSON the answer may be any of these or None; the
+    parser then refuses it anyway.
+    """
+    encoding = json.detect_encoding(body)
+    if encoding not in ("utf-8", "utf-8-sig"):
+        return f"JSON text must be UTF-8, and this body is {encoding.upper()}"
+    if b"\\" in body:
+        body = body.replace(b"\\\\", b"").replace(b'\\"', b"")
+    outside_strings = b"".join(body.split(b'"')[::2])
+    brackets = outside_strings.translate(None, _NOT_BRACKETS)
+    depth = max(accumulate(map(_BRACKET_STEP.__getitem__, brackets)), default=0)
+    if depth > MAX_JSON_DEPTH:
+        return f"JSON nested {depth} levels deep; the limit is {MAX_JSON_DEPTH}"
+    if _TOO_LONG_NUMBER in outside_strings.translate(_NUMBER_CHARACTERS):
+        return f"a number longer than {MAX_NUMBER_LENGTH} characters"
+    return None
+
+
+def declared_charset_problem(content_type: str | None) -> str | None:
+    """Why a JSON content type is refused: it declares a charset other than UTF-8 (RFC 8259 §8.1)."""
+    if not content_type:
+        return None
+    message = email.message.Message()
+    message["content-type"] = content_type
+    charset = message.get_param("charset")
+    if not _is_json(message) or not isinstance(charset, str) or charset.lower() in _UTF8:
+        return None
+    return f"JSON text must be UTF-8, and the Content-Type declares charset={charset}"
+
+
+def _is_json(message: email.message.Message) -> bool:
+    """The media types FastAPI parses as JSON (``application/json`` and ``application/*+json``)."""
+    subtype = message.get_content_subtype()
+    return message.get_content_maintype() == "application" and (subtype == "json" or subtype.endswith("+json"))
+
+
+class _BodyTooLarge(Exception):
+    pass
+
+
+class _Disconnected(Exception):
+    pass
+
+
+class RequestBodyLimits:
+    """Pure ASGI middleware (no response buffering, no effect on websockets or the lifespan)."""
+
+    def __init__(self, app: ASGIApp, max_bytes: int, read_timeout_seconds: float) -> None:
         self.app = app
         self.max_bytes = max_bytes
+        self.read_timeout_seconds = read_timeout_seconds
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
-        declared = dict(scope["headers"]).get(b"content-length")
+        headers = dict(scope["headers"])
+        declared = headers.get(b"content-length")
         if declared is not None and declared.isdigit() and int(declared) > self.max_bytes:
-            error = PayloadTooLarge(self.max_bytes)
-            response = error_response(error.error, error.message, error.status_code, error.field)
-            await response(scope, receive, send)
+            await _refuse(PayloadTooLarge(self.max_bytes), scope, receive, send, close=True)
             return
-        await self.app(scope, self._counting(receive), send)
+        content_type = headers.get(b"content-type", b"").decode("latin-1")
+        if problem := declared_charset_problem(content_type):
+            await _refuse(InvalidInput("body", problem), scope, receive, send, close=True)
+            return
+        body: bytes | None = None
+        try:
+            with anyio.move_on_after(self.read_timeout_seconds):
+                body = await self._read_body(receive)
+        except _BodyTooLarge:
+            await _refuse(PayloadTooLarge(self.max_bytes), scope, receive, send, close=True)
+            return
+        except _Disconnected:  # the route meets the disconnect on its own read, as without this middleware
+            await self.app(scope, receive, send)
+            return
+        if body is None:
+            await _refuse(RequestTimeout(self.read_timeout_seconds), scope, receive, send, close=True)
+            return
+        if body and content_type:
+            message = email.message.Message()
+            message["content-type"] = content_type
+            if _is_json(message) and (problem := json_body_problem(body)):
+                await _refuse(InvalidInput("body", problem), scope, receive, send)
+                return
+        await self.app(scope, _replaying(body, receive), send)
 
-    def _counting(self, receive: Receive) -> Receive:
+    async def _read_body(self, receive: Receive) -> bytes:
+        """The whole body; :class:`_BodyTooLarge` as soon as it passes the limit, :class:`_Disconnected`
+        when the client leaves first."""
+        chunks: list[bytes] = []
         received = 0
-
-        async def counted() -> Message:
-            nonlocal received
+        while True:
             message = await receive()
-            if message["type"] == "http.request":
-                received += len(message.get("body", b""))
-                if received > self.max_bytes:
-                    raise HTTPException(413, PayloadTooLarge(self.max_bytes).message)
-            return message
+            if message["type"] != "http.request":
+                raise _Disconnected
+            chunk = message.get("body", b"")
+            received += len(chunk)
+            if received > self.max_bytes:
+                raise _BodyTooLarge
+            chunks.append(chunk)
+            if not message.get("more_body", False):
+                return b"".join(chunks)
 
-        return counted
+
+def _replaying(body: bytes, receive: Receive) -> Receive:
+    """A ``receive`` that gives the body read in one message, then the connection's own messages."""
+    sent = False
+
+    async def replay() -> Message:
+        nonlocal sent
+        if sent:
+            return await receive()
+        sent = True
+        return {"type": "http.request", "body": body, "more_body": False}
+
+    return replay
+
+
+async def _refuse(error: ContextwebError, scope: Scope, receive: Receive, send: Send, *, close: bool = False) -> None:
+    headers = {"Connection": "close"} if close else None
+    response = error_response(error.error, error.message, error.status_code, error.field, headers=headers)
+    await response(scope, receive, send)
 
 
 class MemoisedRouteMetrics(PrometheusInstrumentatorMiddleware):

@@ -30,7 +30,8 @@ import numpy as np
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.errors import ModelNotFound, ModelUnavailable, StorageUnavailable, is_storage_failure, storage_failure_reason
+from app.errors import ModelNotFound, ModelUnavailable, is_storage_failure, storage_error, storage_failure_reason
+from app.services.limits import VocabularyLimits
 from app.services.perception import Perception
 from core.concept_web import ConceptWeb
 from core.context.incremental import ContextModelState, IncrementalLDA
@@ -87,6 +88,8 @@ class ModelRuntime:
     """``time.monotonic()`` before which no reload is tried (a database that fails is not hammered)."""
     failed_version: int | None = None
     """The stored version whose state failed its check: reloaded again only once that version moves."""
+    vocabulary_limits: VocabularyLimits = field(default_factory=VocabularyLimits.defaults)
+    """How far scenes may grow the vocabulary: the registry's, set when the model enters it."""
 
     @classmethod
     def from_row(
@@ -280,7 +283,10 @@ class ModelRegistry:
     that names them (:meth:`resolve`) or lists them (:meth:`synchronise`).
     """
 
-    def __init__(self, read_sessions: sessionmaker[Session]) -> None:
+    def __init__(
+        self, read_sessions: sessionmaker[Session], vocabulary_limits: VocabularyLimits | None = None
+    ) -> None:
+        self.vocabulary_limits = vocabulary_limits or VocabularyLimits.defaults()
         self._models: dict[str, ModelRuntime] = {}
         self._lock = threading.Lock()
         self._read_sessions = read_sessions
@@ -295,6 +301,7 @@ class ModelRegistry:
         return sorted(self._models.values(), key=lambda model: (model.created_at, model.id))
 
     def add(self, model: ModelRuntime) -> None:
+        model.vocabulary_limits = self.vocabulary_limits
         with self._lock:
             self._models[model.id] = model
 
@@ -344,6 +351,7 @@ class ModelRegistry:
                     if row is None:
                         raise ModelNotFound(model_id)
                     model = _loaded_or_unavailable(session, row)
+                model.vocabulary_limits = self.vocabulary_limits
                 self._models[model_id] = model
         if model.unavailable is not None:
             raise ModelUnavailable(model.id, model.unavailable)
@@ -417,12 +425,12 @@ class ModelRegistry:
 
 @contextmanager
 def _storage_errors() -> Iterator[None]:
-    """A storage failure in the block is a 503 ``storage_unavailable`` (no model is left unproven by it)."""
+    """A storage failure in the block is a 503 (no model is left unproven by it)."""
     try:
         yield
     except Exception as error:
         if is_storage_failure(error):
-            raise StorageUnavailable(storage_failure_reason(error)) from error
+            raise storage_error(error) from error
         raise
 
 
@@ -458,5 +466,5 @@ def _mark_failed(model: ModelRuntime, error: BaseException, what: str) -> None:
 
 def _unavailable(model: ModelRuntime, error: BaseException) -> Exception:
     if is_storage_failure(error):
-        return StorageUnavailable(storage_failure_reason(error))
+        return storage_error(error)
     return ModelUnavailable(model.id, model.unavailable or "unavailable")

@@ -72,5 +72,6 @@ def run_serve(args: argparse.Namespace) -> int:
         log_level=args.log_level,
         log_config=log_config(),
         access_log=False,
+        ws="app.websocket_protocol:ResettableWebSocketProtocol",  # slow stream clients can be dropped (docs/stream.md)
     )
     return 0

@@ -17,6 +17,11 @@ from storage.database import DEFAULT_DATABASE_URL
 LOOPBACK_HOSTS = frozenset({"127.0.0.1", "::1", "localhost"})
 
 
+def normalise_origin(origin: str) -> str:
+    """An ``Origin`` value in the form it is compared in: trimmed, lower case, no trailing slash."""
+    return origin.strip().rstrip("/").lower()
+
+
 class Settings(BaseSettings):
     """Deployment settings; ``CONTEXTWEB_DATABASE_URL`` etc. override the defaults."""
 
@@ -30,15 +35,53 @@ class Settings(BaseSettings):
     )
     host: str = Field("127.0.0.1", description="Interface `contextweb serve` binds to.")
     port: int = Field(8000, ge=1, le=65535, description="Port `contextweb serve` listens on.")
-    write_key: SecretStr | None = Field(None, description="API key of the robots (write and read routes).")
-    read_key: SecretStr | None = Field(None, description="API key of the dashboards (read routes only).")
+    write_key: SecretStr | None = Field(
+        None, description="Bootstrap admin key (every route and model, the key routes); setting it turns keys on."
+    )
+    read_key: SecretStr | None = Field(None, description="Bootstrap read key (the read routes of every model).")
     max_body_bytes: int = Field(8 * 1024 * 1024, ge=1024, description="Largest request body accepted; more is a 413.")
+    body_read_timeout_seconds: float = Field(
+        10.0, gt=0, le=600, description="Time a request's whole body may take to arrive; then a 408 and the close."
+    )
+    max_vocabulary: int = Field(
+        10_000, ge=1, le=1_000_000, description="Concepts (|W|) a model may hold; a scene that would pass it is a 422."
+    )
+    max_new_concepts_per_scene: int = Field(
+        64, ge=1, le=16_384, description="New concept names one scene may add to a model's vocabulary; more is a 422."
+    )
     sqlite_synchronous: Literal["FULL", "NORMAL"] = Field(
         "FULL", description="SQLite `synchronous` pragma: FULL makes every acknowledged commit survive a power loss."
     )
     database_pool_size: int = Field(8, ge=1, description="Connections kept open per process.")
     stream_queue_size: int = Field(256, ge=1, description="Events buffered per websocket client before it is dropped.")
+    stream_send_timeout_seconds: float = Field(
+        5.0, gt=0, le=300, description="How long one websocket send may wait on a client that does not read; then 1013."
+    )
+    allowed_origins: list[str] = Field(
+        default_factory=list,
+        description="Browser origins (JSON list) that may open the stream; others are closed with 4403. Empty: any.",
+    )
     worker_threads: int = Field(16, ge=1, description="Threads running the blocking routes (numba, database).")
+    model_write_queue: int = Field(
+        32, ge=0, le=10_000, description="Writes a model keeps waiting behind the one in progress; more is a 429."
+    )
+    model_write_queue_bytes: int = Field(
+        32 * 1024 * 1024,
+        ge=0,
+        description="Total body bytes of a model's waiting writes (one always may wait); more is a 429; 0 is no bound.",
+    )
+    rate_limit_per_second: float = Field(
+        0.0, ge=0.0, le=1e6, description="Writes a second each client (API key, else address) may make; 0 is off."
+    )
+    rate_limit_burst: int = Field(
+        50, ge=1, le=1_000_000, description="Writes a client may make at once before the rate applies."
+    )
+    sqlite_busy_timeout_ms: int = Field(
+        5_000,
+        ge=0,
+        le=60_000,
+        description="How long an SQLite write waits for the database's write lock; then a 503 `storage_busy`.",
+    )
 
     @field_validator("write_key", "read_key", mode="before")
     @classmethod
@@ -49,6 +92,12 @@ class Settings(BaseSettings):
         if isinstance(value, SecretStr) and not value.get_secret_value().strip():
             return None
         return value
+
+    @field_validator("allowed_origins")
+    @classmethod
+    def _normalise_origins(cls, origins: list[str]) -> list[str]:
+        """As browsers send them (RFC 6454 serialisation): lower case, no trailing slash."""
+        return [normalise_origin(origin) for origin in origins]
 
     @model_validator(mode="after")
     def _refuse_unsafe_keys(self) -> Settings:

@@ -22,8 +22,8 @@ from typing import Any
 
 #: Close codes (docs/stream.md). 4000 + the HTTP status for refusals, RFC 6455 codes otherwise.
 CLOSE_NORMAL = 1000
-CLOSE_GOING_AWAY = 1001
 CLOSE_INTERNAL_ERROR = 1011
+CLOSE_SERVICE_RESTART = 1012
 CLOSE_TOO_SLOW = 1013
 CLOSE_UNAUTHORIZED = 4401
 CLOSE_FORBIDDEN = 4403
@@ -48,6 +48,8 @@ class Subscriber:
     """The id of the last ``scene`` event it took."""
     discovered_scene_id: int | None = None
     """The scene of the last ``context_discovered`` event it took."""
+    key_id: str | None = None
+    """The stored API key it connected with (app/auth.py closes it when that key is revoked)."""
 
     def takes(self, event: dict[str, Any]) -> bool:
         """Whether ``event`` is next for this subscriber (and if so, count it as taken)."""
@@ -127,10 +129,25 @@ class StreamHub:
         for subscriber in list(self._subscribers.get(model_id, ())):
             self._drop(subscriber, CloseInstruction(code, reason))
 
+    def stream_key_ids_now(self) -> set[str]:
+        """The stored keys of the open subscribers."""
+        return {s.key_id for subscribers in self._subscribers.values() for s in subscribers if s.key_id is not None}
+
+    def close_key_now(self, key_id: str, code: int, reason: str) -> None:
+        """Close every subscriber connected with the stored key ``key_id`` (it was revoked)."""
+        for subscribers in list(self._subscribers.values()):
+            for subscriber in [s for s in subscribers if s.key_id == key_id]:
+                self._drop(subscriber, CloseInstruction(code, reason))
+
     def close_everyone(self, reason: str) -> None:
-        """Close every subscriber (shutdown); called on the event loop."""
+        """Close every subscriber (shutdown); called on the event loop.
+
+        1012 like uvicorn, which closes every websocket with 1012 itself before the
+        lifespan's shutdown calls this: under ``contextweb serve`` nobody is left by
+        then, under another server the code is the same (docs/stream.md).
+        """
         for model_id in list(self._subscribers):
-            self.close_model_now(model_id, CLOSE_GOING_AWAY, reason)
+            self.close_model_now(model_id, CLOSE_SERVICE_RESTART, reason)
 
     def _drop(self, subscriber: Subscriber, instruction: CloseInstruction) -> None:
         """Forget the queued events and leave only the close instruction."""

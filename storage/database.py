@@ -6,7 +6,12 @@ commit survives a power loss, not only a crash), foreign keys on, and a busy
 timeout. Write transactions start with ``BEGIN IMMEDIATE``: in WAL mode a
 deferred transaction that reads first and writes later fails at once with
 SQLITE_BUSY_SNAPSHOT when another model committed meanwhile, whereas an
-immediate one queues on the busy timeout.
+immediate one queues on the busy timeout. The busy timeout
+(``CONTEXTWEB_SQLITE_BUSY_TIMEOUT_MS``, 5 s by default) is shorter than any
+client's request deadline (the bridge's is 30 s): a write lock held elsewhere
+for longer (an outside ``sqlite3`` shell, a backup) is a prompt 503
+``storage_busy``, never a request that hangs until the client gives up. Reads
+use deferred transactions: in WAL mode they never wait for the writer.
 """
 
 from __future__ import annotations
@@ -27,8 +32,9 @@ from sqlalchemy.types import TypeEngine
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SQLITE_PATH = PROJECT_ROOT / "var" / "contextweb.sqlite3"
 DEFAULT_DATABASE_URL = f"sqlite:///{DEFAULT_SQLITE_PATH}"
-SQLITE_BUSY_TIMEOUT_MS = 30_000
+SQLITE_BUSY_TIMEOUT_MS = 5_000
 _WRITE_OPTION = "contextweb_write"
+_LOCK_WAIT_OPTION = "contextweb_lock_wait_ms"
 
 
 def is_sqlite(url: str) -> bool:
@@ -64,7 +70,13 @@ POSTGRES_SESSION_OPTIONS = (
 )
 
 
-def create_database_engine(url: str, *, sqlite_synchronous: str = "FULL", pool_size: int = 8) -> Engine:
+def create_database_engine(
+    url: str,
+    *,
+    sqlite_synchronous: str = "FULL",
+    pool_size: int = 8,
+    sqlite_busy_timeout_ms: int = SQLITE_BUSY_TIMEOUT_MS,
+) -> Engine:
     """An engine for ``url``; SQLite files get their folder created and the pragmas above; PostgreSQL
     connections the time-outs above."""
     url = normalise_url(url)
@@ -80,11 +92,11 @@ def create_database_engine(url: str, *, sqlite_synchronous: str = "FULL", pool_s
     if database and database != ":memory:":
         Path(database).parent.mkdir(parents=True, exist_ok=True)
     engine = create_engine(url, pool_size=pool_size, max_overflow=pool_size, connect_args={"check_same_thread": False})
-    _install_sqlite_pragmas(engine, sqlite_synchronous, database)
+    _install_sqlite_pragmas(engine, sqlite_synchronous, database, sqlite_busy_timeout_ms)
     return engine
 
 
-def _install_sqlite_pragmas(engine: Engine, synchronous: str, database: str | None) -> None:
+def _install_sqlite_pragmas(engine: Engine, synchronous: str, database: str | None, busy_timeout_ms: int) -> None:
     @event.listens_for(engine, "connect")
     def _on_connect(dbapi_connection: Any, _record: Any) -> None:
         dbapi_connection.isolation_level = None  # transactions are begun by _on_begin, not by pysqlite
@@ -92,8 +104,9 @@ def _install_sqlite_pragmas(engine: Engine, synchronous: str, database: str | No
         cursor.execute("PRAGMA journal_mode=WAL")
         cursor.execute(f"PRAGMA synchronous={synchronous}")
         cursor.execute("PRAGMA foreign_keys=ON")
-        cursor.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
+        cursor.execute(f"PRAGMA busy_timeout={int(busy_timeout_ms)}")
         cursor.close()
+        _record.info[_LOCK_WAIT_OPTION] = busy_timeout_ms
 
     @event.listens_for(engine, "do_connect")
     def _refuse_read_only_file(_dialect: Any, _record: Any, _args: Any, _kwargs: Any) -> None:
@@ -108,8 +121,19 @@ def _install_sqlite_pragmas(engine: Engine, synchronous: str, database: str | No
     @event.listens_for(engine, "begin")
     def _on_begin(connection: Any) -> None:
         # Straight to the driver: through exec_driver_sql this statement cost ≈ 0.2 ms a scene.
-        immediate = connection.get_execution_options().get(_WRITE_OPTION, False)
-        connection.connection.driver_connection.execute("BEGIN IMMEDIATE" if immediate else "BEGIN")
+        options = connection.get_execution_options()
+        driver, info = connection.connection.driver_connection, connection.connection.info
+        lock_wait = options.get(_LOCK_WAIT_OPTION, busy_timeout_ms)
+        statement = "BEGIN IMMEDIATE" if options.get(_WRITE_OPTION, False) else "BEGIN"
+        try:
+            if info.get(_LOCK_WAIT_OPTION) != lock_wait:  # a probe's shorter wait, or back to the default after one
+                driver.execute(f"PRAGMA busy_timeout={int(lock_wait)}")
+                info[_LOCK_WAIT_OPTION] = lock_wait
+            driver.execute(statement)
+        except sqlite3.Error as error:
+            # SQLAlchemy wraps the driver's errors of its own statements, not those of a listener: the
+            # busy timeout running out here must still be an OperationalError (a 503), not a bare 500.
+            raise DBAPIError.instance(statement, (), error, sqlite3.Error) from error
 
 
 class DriverStatements:
@@ -209,6 +233,13 @@ def snapshot(sessions: sessionmaker[Session]) -> Iterator[Session]:
             yield session
         finally:
             session.rollback()
+
+
+def with_lock_wait(sessions: sessionmaker[Session], milliseconds: int) -> sessionmaker[Session]:
+    """``sessions`` whose SQLite transactions wait at most ``milliseconds`` for the write lock instead
+    of the busy timeout (the readiness probe must answer promptly); no effect on PostgreSQL."""
+    bind = sessions.kw["bind"].execution_options(**{_LOCK_WAIT_OPTION: milliseconds})
+    return sessionmaker(bind=bind, expire_on_commit=False, autoflush=False)
 
 
 def create_session_makers(engine: Engine) -> tuple[sessionmaker[Session], sessionmaker[Session]]:

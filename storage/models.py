@@ -17,6 +17,7 @@ from typing import Any
 from sqlalchemy import (
     JSON,
     BigInteger,
+    CheckConstraint,
     DateTime,
     Float,
     ForeignKey,
@@ -190,3 +191,29 @@ class StorageProbe(Base):
 
     id: Mapped[str] = mapped_column(String(64), primary_key=True)
     probed_at: Mapped[datetime] = mapped_column()
+
+
+class ApiKey(Base):
+    """An API key of one robot or dashboard: its role, its models, and only the SHA-256 of its secret.
+
+    The model scope is a JSON list of model ids, NULL meaning every model (app/auth.py). A list
+    rather than an association table: the request's one primary-key read returns the key with
+    its scope, and deleting a model cannot silently turn a scoped key into one with no models
+    (or, with a NULL-for-all convention, into an all-models key); an id left over from a deleted
+    model matches nothing, since model ids are random and never reused.
+    """
+
+    __tablename__ = "api_key"
+    __table_args__ = (CheckConstraint("role IN ('read', 'write', 'admin')", name="role"),)
+
+    id: Mapped[str] = mapped_column(String(32), primary_key=True)
+    """The lookup id, the public middle part of the key (``cw_<id>_<secret>``)."""
+    name: Mapped[str] = mapped_column(String(200))
+    role: Mapped[str] = mapped_column(String(10))
+    model_ids: Mapped[list[Any] | None]
+    prefix: Mapped[str] = mapped_column(String(40))
+    """The key's first characters, shown in listings so an operator can recognise a key."""
+    secret_hash: Mapped[str] = mapped_column(String(64))
+    """Hex SHA-256 of the whole key (app/auth.py says why not a slow KDF)."""
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    revoked_at: Mapped[datetime | None] = mapped_column()

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import anyio
 from fastapi import APIRouter
 
-from app.deps import StateDep
+from app.deps import AdmissionDep, StateDep
 from app.errors import NotReady, error_responses
 from app.schemas.health import HealthRead, ReadinessRead
 from app.services import health as health_service
@@ -22,5 +23,5 @@ async def healthz() -> HealthRead:
     summary="Readiness: models loaded, database reachable and taking writes",
     responses=error_responses(NotReady),
 )
-def readyz(state: StateDep) -> ReadinessRead:
-    return health_service.readiness(state)
+async def readyz(state: StateDep, admission: AdmissionDep) -> ReadinessRead:
+    return await anyio.to_thread.run_sync(health_service.readiness, state, limiter=admission.probe_threads)

@@ -4,8 +4,28 @@ from __future__ import annotations
 
 from fastapi import APIRouter, status
 
-from app.deps import ModelDep, ReadAccess, StateDep, WriteAccess, WriteModelDep, WriteSessionDep, model_write
-from app.errors import Forbidden, InvalidInput, ModelNotFound, Unauthorized, error_responses
+from app.deps import (
+    AdmissionDep,
+    ModelDep,
+    ReadAccess,
+    ReadPrincipal,
+    StateDep,
+    WriteAccess,
+    WriteModelDep,
+    WriteRate,
+    WriteSessionDep,
+    write_model,
+)
+from app.errors import (
+    Forbidden,
+    InvalidInput,
+    ModelBusy,
+    ModelNotFound,
+    RateLimited,
+    StorageBusy,
+    Unauthorized,
+    error_responses,
+)
 from app.schemas.models import ModelCreate, ModelRead
 from app.services import models as model_service
 
@@ -24,9 +44,9 @@ def create_model(body: ModelCreate, session: WriteSessionDep, state: StateDep) -
     return model_service.model_read(model_service.create_model(session, state.registry, body))
 
 
-@router.get("", summary="List the models", dependencies=[ReadAccess], responses=error_responses(Unauthorized))
-def list_models(state: StateDep) -> list[ModelRead]:
-    return [model_service.model_read(model) for model in state.registry.synchronise()]
+@router.get("", summary="List the models (a scoped key's only)", responses=error_responses(Unauthorized))
+def list_models(state: StateDep, principal: ReadPrincipal) -> list[ModelRead]:
+    return [model_service.model_read(model) for model in state.registry.synchronise() if principal.covers(model.id)]
 
 
 @router.get(
@@ -43,9 +63,14 @@ async def get_model(model: ModelDep) -> ModelRead:
     "/{model_id}",
     status_code=status.HTTP_204_NO_CONTENT,
     summary="Delete a model and everything it learned",
-    dependencies=[WriteAccess],
-    responses=error_responses(ModelNotFound, *_AUTH),
+    dependencies=[WriteAccess, WriteRate],
+    responses=error_responses(ModelNotFound, *_AUTH, ModelBusy, RateLimited, StorageBusy),
 )
-def delete_model(model: WriteModelDep, state: StateDep) -> None:
-    with model_write(state, model) as write:
-        model_service.delete_model(write.session, state.registry, state.hub, model)
+async def delete_model(model: WriteModelDep, state: StateDep, admission: AdmissionDep) -> None:
+    await admission.run_write(
+        model.id,
+        write_model,
+        state,
+        model,
+        lambda session: model_service.delete_model(session, state.registry, state.hub, model),
+    )

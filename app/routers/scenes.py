@@ -6,21 +6,37 @@ from typing import Annotated
 
 from fastapi import APIRouter, Header, Path, Query, Response, status
 
-from app.deps import ModelDep, ReadAccess, ReadSessionDep, StateDep, WriteAccess, WriteModelDep, model_write
+from app.deps import (
+    AdmissionDep,
+    BodySizeDep,
+    ModelDep,
+    ReadAccess,
+    ReadSessionDep,
+    StateDep,
+    WriteAccess,
+    WriteModelDep,
+    WriteRate,
+    model_write,
+)
 from app.errors import (
     Forbidden,
     IdempotencyKeyReused,
     InvalidInput,
+    ModelBusy,
     ModelNotFitted,
     ModelNotFound,
     PayloadTooLarge,
+    RateLimited,
     SceneNotFound,
+    StorageBusy,
     Unauthorized,
     error_responses,
 )
+from app.registry import ModelRuntime
 from app.schemas.common import Page
 from app.schemas.scenes import SceneCreate, SceneRead, SceneSummary
 from app.services import scenes as scene_service
+from app.state import AppState
 
 router = APIRouter(prefix="/v1/models/{model_id}", tags=["scenes"])
 
@@ -42,17 +58,33 @@ _ANALYSIS_ERRORS = (InvalidInput, ModelNotFound, ModelNotFitted, PayloadTooLarge
     status_code=status.HTTP_201_CREATED,
     response_model=SceneRead,
     summary="Learn a scene online and answer its analysis",
-    dependencies=[WriteAccess],
-    responses=error_responses(*_ANALYSIS_ERRORS, IdempotencyKeyReused, Forbidden),
+    dependencies=[WriteAccess, WriteRate],
+    responses=error_responses(*_ANALYSIS_ERRORS, IdempotencyKeyReused, Forbidden, ModelBusy, RateLimited, StorageBusy),
 )
-def post_scene(
-    body: SceneCreate, model: WriteModelDep, state: StateDep, idempotency_key: IdempotencyKey = None
+async def post_scene(
+    body: SceneCreate,
+    model: WriteModelDep,
+    state: StateDep,
+    admission: AdmissionDep,
+    body_bytes: BodySizeDep,
+    idempotency_key: IdempotencyKey = None,
 ) -> Response:
-    with model_write(state, model) as write:
-        answer, replayed = scene_service.learn_scene(write.session, model, write.version, body, idempotency_key)
-        write.version_saved, write.unchanged = not replayed, replayed
+    answer, replayed = await admission.run_write(
+        model.id, _learn_scene, state, model, body, idempotency_key, body_bytes=body_bytes
+    )
     headers = {"Idempotent-Replayed": "true"} if replayed else None
     return Response(answer, status.HTTP_201_CREATED, headers, media_type="application/json")
+
+
+def _learn_scene(
+    state: AppState, model: ModelRuntime, body: SceneCreate, idempotency_key: str | None
+) -> tuple[str, bool]:
+    """On the admitted worker thread: perception before the model's lock, the learning under it."""
+    prepared = scene_service.prepare_scene(model, body)
+    with model_write(state, model) as write:
+        answer, replayed = scene_service.learn_scene(write.session, model, write.version, prepared, idempotency_key)
+        write.version_saved, write.unchanged = not replayed, replayed
+    return answer, replayed
 
 
 @router.post(

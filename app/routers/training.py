@@ -4,13 +4,26 @@ from __future__ import annotations
 
 from fastapi import APIRouter, status
 
-from app.deps import ModelDep, ReadAccess, StateDep, WriteAccess, WriteModelDep, model_write
+from app.deps import (
+    AdmissionDep,
+    BodySizeDep,
+    ModelDep,
+    ReadAccess,
+    StateDep,
+    WriteAccess,
+    WriteModelDep,
+    WriteRate,
+    write_model,
+)
 from app.errors import (
     Forbidden,
     InvalidInput,
+    ModelBusy,
     ModelNotFitted,
     ModelNotFound,
     PayloadTooLarge,
+    RateLimited,
+    StorageBusy,
     Unauthorized,
     error_responses,
 )
@@ -18,30 +31,40 @@ from app.schemas.training import FitCreate, FitRead, PrototypeTableRead, Trainin
 from app.services import training as training_service
 
 router = APIRouter(prefix="/v1/models/{model_id}", tags=["training"])
-_WRITE_ERRORS = (InvalidInput, ModelNotFound, Unauthorized, Forbidden)
+_WRITE_ERRORS = (InvalidInput, ModelNotFound, Unauthorized, Forbidden, ModelBusy, RateLimited, StorageBusy)
 
 
 @router.post(
     "/training-objects",
     status_code=status.HTTP_201_CREATED,
     summary="Add labelled training objects (entity/effect vectors or raw payloads)",
-    dependencies=[WriteAccess],
+    dependencies=[WriteAccess, WriteRate],
     responses=error_responses(*_WRITE_ERRORS, PayloadTooLarge),
 )
-def add_training_objects(body: TrainingBatchCreate, model: WriteModelDep, state: StateDep) -> TrainingBatchRead:
-    with model_write(state, model) as write:
-        return training_service.add_training_objects(write.session, model, body)
+async def add_training_objects(
+    body: TrainingBatchCreate, model: WriteModelDep, state: StateDep, admission: AdmissionDep, body_bytes: BodySizeDep
+) -> TrainingBatchRead:
+    return await admission.run_write(
+        model.id,
+        write_model,
+        state,
+        model,
+        lambda session: training_service.add_training_objects(session, model, body),
+        body_bytes=body_bytes,
+    )
 
 
 @router.post(
     "/fit",
     summary="Fit prototypes, concept web and behaviour effects from the training objects",
-    dependencies=[WriteAccess],
+    dependencies=[WriteAccess, WriteRate],
     responses=error_responses(*_WRITE_ERRORS, ModelNotFitted),
 )
-def fit(model: WriteModelDep, state: StateDep, body: FitCreate | None = None) -> FitRead:
-    with model_write(state, model) as write:
-        return training_service.fit(write.session, model, body or FitCreate())
+async def fit(model: WriteModelDep, state: StateDep, admission: AdmissionDep, body: FitCreate | None = None) -> FitRead:
+    options = body or FitCreate()
+    return await admission.run_write(
+        model.id, write_model, state, model, lambda session: training_service.fit(session, model, options)
+    )
 
 
 @router.get(

@@ -21,6 +21,26 @@ MAX_CONCEPTS_PER_KIND = 256
 #: Upper bounds on integer settings, so that one request's work stays bounded (far above useful values).
 MAX_INTEGER_SETTING = 10_000
 INTEGER_SETTING_BOUNDS = {"max_contexts": 100, "rejuvenation_tokens": 100_000}
+#: Dirichlet concentrations (α, ξ, the scene prior's pseudo-counts): 1e-6 to 1e3. Above 1e3 the
+#: prior outweighs the counts of any scene (a scene is at most 16,384 tokens, typically ~30), so
+#: every posterior is uniform: a larger value means nothing more. Below 1e-6 the products of
+#: Eq. 5 (n + α)(n + ξ) for unseen words fall towards float64's underflow and the sampler's
+#: probabilities lose their precision; the paper uses 0.1. ``alpha: 1e308`` made every posterior 0.
+DIRICHLET_BOUNDS = {"ge": 1e-6, "le": 1e3}
+#: Bounds of the real settings, with the reasons above and in each one's docstring: τ and δ are
+#: probabilities; a z-score above 100 or a margin above 10,000 nats can never be met (growth
+#: simply stops, which ``max_contexts`` says more plainly).
+FLOAT_SETTING_BOUNDS: dict[str, dict[str, float]] = {
+    "alpha": DIRICHLET_BOUNDS,
+    "xi": DIRICHLET_BOUNDS,
+    "scene_prior_strength": DIRICHLET_BOUNDS,
+    "tau": {"gt": 0.0, "lt": 1.0},
+    "delta": {"ge": 0.0, "le": 1.0},
+    "growth_z": {"ge": 0.0, "le": 100.0},
+    "online_growth_z": {"ge": 0.0, "le": 100.0},
+    "birth_margin": {"ge": 0.0, "le": 1e4},
+    "online_birth_margin": {"ge": 0.0, "le": 1e4},
+}
 
 
 def _attribute_docstrings(cls: type) -> dict[str, str]:
@@ -43,8 +63,10 @@ def _hyperparameter_fields(cls: type) -> dict[str, Any]:
     """Pydantic fields mirroring the core dataclass: same names, types, defaults and docstrings.
 
     The core's ``__post_init__`` stays the judge of valid values (the service
-    calls it and reports its InvalidInputError with the field); here only the
-    types, finiteness and the work bounds are checked.
+    calls it and reports its InvalidInputError with the field); here the types,
+    finiteness, the work bounds of the integers and the ranges of the reals
+    (:data:`FLOAT_SETTING_BOUNDS`) are checked. The core does not enforce these
+    ranges, so a model stored before them still loads.
     """
     types, docs = typing.get_type_hints(cls), _attribute_docstrings(cls)
     fields: dict[str, Any] = {}
@@ -53,7 +75,7 @@ def _hyperparameter_fields(cls: type) -> dict[str, Any]:
         if types[field.name] is int:
             constraints = {"ge": 0, "le": INTEGER_SETTING_BOUNDS.get(field.name, MAX_INTEGER_SETTING)}
         elif types[field.name] is float:
-            constraints = {"allow_inf_nan": False}
+            constraints = {"allow_inf_nan": False, **FLOAT_SETTING_BOUNDS[field.name]}
         fields[field.name] = (types[field.name], Field(field.default, description=docs.get(field.name), **constraints))
     return fields
 
@@ -83,7 +105,7 @@ class ModelCreate(RequestSchema):
     name: Name
     seed: int = Field(0, ge=0, le=2**63 - 1, description="Seed of the model's random generator.")
     sigma: float = Field(
-        PAPER_SIGMA, ge=0, le=1, description="σ of Eq. 6: weight of the concept web against the context (1 = web only)."
+        PAPER_SIGMA, ge=0, le=1, allow_inf_nan=False, description="σ of Eq. 6: weight of the concept web against the context (1 = web only)."
     )
     hyperparameters: Hyperparameters = Field(default_factory=Hyperparameters)
     vocabulary: VocabularySchema | None = Field(None, description="Default: the paper's 29 concepts.")

@@ -1,8 +1,18 @@
 """Scenes: learn one online (Algorithm 2's loop body), or only analyse it; the scene history.
 
-Learning a scene, under the model's write lock (app/deps.py ``model_write``):
+Learning a scene:
 
-1. the objects' concept webs (app/services/perception.py) — no database work;
+1. :func:`prepare_scene`, before the model's write lock (app/deps.py
+   ``model_write``): the objects' concept webs (app/services/perception.py; for
+   raw payloads the feature extraction, seconds for the largest bodies) and the
+   body's hash — no database work, nothing of the model changed, so no other
+   request waits for it. It runs against the model's perception read once: a
+   fit (or a catch-up or reload) replaces the perception whole, and
+   :func:`learn_scene` redoes the analysis under the lock if it was replaced
+   meanwhile (rare, and cheap next to the fit that caused it);
+
+Then under the model's write lock, :func:`learn_scene`:
+
 2. the Idempotency-Key: a key seen with the same body returns the stored answer
    and changes nothing; with another body it is a 422;
 3. the context fed back into the webs (Eq. 6), against the model as it stood;
@@ -16,17 +26,20 @@ Learning a scene, under the model's write lock (app/deps.py ``model_write``):
 from __future__ import annotations
 
 import hashlib
+from dataclasses import dataclass
 from datetime import UTC, datetime
 
 import numpy as np
 from sqlalchemy.orm import Session
 
-from app.errors import IdempotencyKeyReused, InvalidInput, SceneNotFound
+from app.errors import ContextwebError, IdempotencyKeyReused, InvalidInput, SceneNotFound
 from app.registry import ModelRuntime, jsonable
 from app.schemas.common import Page
 from app.schemas.scenes import ObjectAnalysis, SceneCreate, SceneRead, SceneSummary
-from app.services.perception import ObjectResult, SceneAnalysis, analyse_objects, in_context
+from app.services.limits import check_vocabulary_growth
+from app.services.perception import ObjectResult, Perception, SceneAnalysis, analyse_objects, in_context
 from core.context.incremental import SceneUpdate
+from core.errors import InvalidInputError
 from storage.database import pipelined
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import scenes as scene_repository
@@ -34,22 +47,62 @@ from storage.repositories.incremental_lda import SceneChanges, reassigned_rows
 from storage.unit_of_work import after_commit
 
 
-def learn_scene(
-    session: Session, model: ModelRuntime, version: int, body: SceneCreate, idempotency_key: str | None
-) -> tuple[str, bool]:
-    """Learn ``body`` online as the model's write ``version``; returns the answer (the ``SceneRead``
-    JSON, stored byte for byte) and whether it is a stored one (idempotent replay). A learned scene
-    stores ``version`` in its state row (the caller need not)."""
+@dataclass(frozen=True)
+class PreparedScene:
+    """A scene analysed outside the model's lock (:func:`prepare_scene`), waiting for :func:`learn_scene`."""
+
+    body: SceneCreate
+    request_hash: str
+    perception: Perception
+    """The perception the analysis used (compared by identity: a fit replaces it whole)."""
+    analysis: SceneAnalysis | None
+    refusal: ContextwebError | InvalidInputError | None
+    """The analysis's refusal of the body (a 4xx), raised by :func:`learn_scene` after the replay check."""
+
+    def analysis_for(self, model: ModelRuntime) -> SceneAnalysis:
+        """The analysis against the model's perception now (redone if a fit replaced it)."""
+        if self.perception is not model.perception:
+            return analyse_objects(model.perception, self.body.objects, model.id)
+        if self.refusal is not None:
+            raise self.refusal
+        assert self.analysis is not None
+        return self.analysis
+
+
+def prepare_scene(model: ModelRuntime, body: SceneCreate) -> PreparedScene:
+    """Perception and concept webs of ``body`` (and its hash), without the model's lock: changes
+    nothing, so that one heavy scene never holds the lock that the model's other requests wait for.
+    A refusal is kept, not raised: a retried scene's stored answer (Idempotency-Key) wins over it,
+    as when the analysis ran under the lock."""
+    perception = model.perception
     request_hash = hashlib.sha256(body.model_dump_json().encode()).hexdigest()
+    try:
+        analysis = analyse_objects(perception, body.objects, model.id)
+    except (ContextwebError, InvalidInputError) as refusal:
+        return PreparedScene(body, request_hash, perception, None, refusal)
+    return PreparedScene(body, request_hash, perception, analysis, None)
+
+
+def learn_scene(
+    session: Session,
+    model: ModelRuntime,
+    version: int,
+    prepared: PreparedScene,
+    idempotency_key: str | None,
+) -> tuple[str, bool]:
+    """Learn the prepared scene online as the model's write ``version``; returns the answer (the
+    ``SceneRead`` JSON, stored byte for byte) and whether it is a stored one (idempotent replay).
+    A learned scene stores ``version`` in its state row (the caller need not)."""
+    body, request_hash = prepared.body, prepared.request_hash
     if idempotency_key is not None:
         stored = scene_repository.find_by_idempotency_key(session, model.id, idempotency_key)
         if stored is not None:
             if stored.request_hash != request_hash:
                 raise IdempotencyKeyReused(idempotency_key)
             return stored.answer, True
-    # After the replay check: a retried scene costs no perception (nor, for raw payloads, extraction).
-    analysis = analyse_objects(model.perception, body.objects, model.id)
+    analysis = prepared.analysis_for(model)
     words = _scene_words(analysis)
+    check_vocabulary_growth(model, words)
     analysis = in_context(model.perception, model.incremental_lda, analysis, sigma=model.sigma, seed=model.seed)
     first_token = model.incremental_lda.lda_state.n_tokens
     model.changing = True  # from here until the commit, memory holds what the database may not

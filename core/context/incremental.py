@@ -253,6 +253,10 @@ class IncrementalLDA:
     def vocabulary(self) -> tuple[str, ...]:
         return tuple(self._vocabulary)
 
+    def unseen_words(self, words: Iterable[str]) -> list[str]:
+        """The distinct ``words`` not in the vocabulary, in first-seen order: what learning them would add."""
+        return [word for word in dict.fromkeys(words) if word not in self._index]
+
     @property
     def n_contexts(self) -> int:
         return self._state.n_contexts

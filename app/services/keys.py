@@ -1,0 +1,62 @@
+"""Creating, listing and revoking the stored API keys (app/auth.py has the key format and the checks)."""
+
+from __future__ import annotations
+
+from sqlalchemy.orm import Session
+
+from app.auth import generate_key
+from app.errors import InvalidInput, KeyNotFound
+from app.schemas.keys import ApiKeyCreate, ApiKeyCreated, ApiKeyRead
+from storage.models import ApiKey, utc_now
+from storage.repositories import api_keys as api_key_repository
+
+
+def create_key(session: Session, body: ApiKeyCreate) -> ApiKeyCreated:
+    """A new key; the answer is the only place its secret ever appears.
+
+    The scope's models must exist (a mistyped id would make a key that opens nothing), and an
+    admin key cannot be scoped: it could create a key of every model.
+    """
+    if body.models is not None:
+        if body.role == "admin":
+            raise InvalidInput("models", "an admin key is a key of every model: send models null")
+        existing = api_key_repository.existing_model_ids(session, body.models)
+        for index, model_id in enumerate(body.models):
+            if model_id not in existing:
+                raise InvalidInput(f"models[{index}]", f"no model {model_id!r}")
+    new = generate_key()
+    row = api_key_repository.add_api_key(
+        session,
+        key_id=new.key_id,
+        name=body.name,
+        role=body.role,
+        model_ids=None if body.models is None else sorted(set(body.models)),
+        prefix=new.prefix,
+        secret_hash=new.secret_hash,
+    )
+    return ApiKeyCreated(**key_read(row).model_dump(), key=new.key)
+
+
+def list_keys(session: Session) -> list[ApiKeyRead]:
+    """Every key, revoked ones included (with ``revoked_at``), oldest first."""
+    return [key_read(row) for row in api_key_repository.list_api_keys(session)]
+
+
+def revoke_key(session: Session, key_id: str) -> ApiKeyRead:
+    """Revoke the key (again: nothing changes); :class:`KeyNotFound` if there is no such key."""
+    row = api_key_repository.revoke_api_key(session, key_id, utc_now())
+    if row is None:
+        raise KeyNotFound(key_id)
+    return key_read(row)
+
+
+def key_read(row: ApiKey) -> ApiKeyRead:
+    return ApiKeyRead(
+        id=row.id,
+        name=row.name,
+        role=row.role,  # type: ignore[arg-type]
+        models=row.model_ids,
+        prefix=row.prefix,
+        created_at=row.created_at,
+        revoked_at=row.revoked_at,
+    )

@@ -1,0 +1,141 @@
+"""The body-read deadline against a real ``contextweb serve``: stalled bodies get a 408 and a close.
+
+Raw sockets send a request's headers and only part of its body (or a chunked body
+that trickles on past the deadline); each must be answered 408 in the documented
+shape and closed within the deadline plus a margin, while a normal request on
+another connection is served meanwhile. The deadline is 1 s here.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import migrated_database
+from tests.servers import ServerProcess, running_server
+
+DEADLINE_SECONDS = 1.0
+#: Generous: the machine is shared and slow; the point is "closed", not "closed fast".
+MARGIN_SECONDS = 4.0
+STALLED_CONNECTIONS = 50
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
+    directory = Path(tmp_path_factory.mktemp("deadline"))
+    url = migrated_database("sqlite", None, directory)  # type: ignore[arg-type]
+    env = {"CONTEXTWEB_BODY_READ_TIMEOUT_SECONDS": str(DEADLINE_SECONDS), "CONTEXTWEB_MAX_BODY_BYTES": "65536"}
+    with running_server(url, directory, env=env) as server:
+        yield server
+
+
+def _connect(server: ServerProcess) -> socket.socket:
+    sock = socket.create_connection(("127.0.0.1", server.port), timeout=DEADLINE_SECONDS + MARGIN_SECONDS)
+    return sock
+
+
+def _headers(path: str, extra: str) -> bytes:
+    return f"POST {path} HTTP/1.1\r\nHost: test\r\nContent-Type: application/json\r\n{extra}\r\n".encode()
+
+
+def _read_until_closed(sock: socket.socket) -> bytes:
+    """Everything the server sends until it closes the connection (a timeout fails the test)."""
+    received = b""
+    while chunk := sock.recv(65536):
+        received += chunk
+    return received
+
+
+def _error_of(response: bytes) -> tuple[int, dict[str, object], bytes]:
+    head, _, body = response.partition(b"\r\n\r\n")
+    status = int(head.split(b" ", 2)[1])
+    return status, json.loads(body), head.lower()
+
+
+def test_stalled_bodies_get_a_408_and_are_closed_while_others_are_served(server: ServerProcess) -> None:
+    with server.client() as client:
+        model_id = client.post("/v1/models", json={"name": "deadline"}).json()["id"]
+    path = f"/v1/models/{model_id}/scenes"
+    stalled = []
+    started = time.monotonic()
+    for _ in range(STALLED_CONNECTIONS):
+        sock = _connect(server)
+        sock.sendall(_headers(path, "Content-Length: 1000\r\n") + b'{"objects": [')
+        stalled.append(sock)
+    # Meanwhile, a normal request on its own connection is served at once.
+    with server.client() as client:
+        scene = client.post(path, json={"objects": [{"concepts": ["cup", "hard"]}]})
+        assert scene.status_code == 201, scene.text
+        served_after = time.monotonic() - started
+    for sock in stalled:
+        with sock:
+            status, error, head = _error_of(_read_until_closed(sock))
+            assert status == 408 and b"connection: close" in head
+            assert error == {
+                "error": "request_timeout",
+                "detail": f"the request body did not arrive within {DEADLINE_SECONDS:g} s "
+                "(CONTEXTWEB_BODY_READ_TIMEOUT_SECONDS)",
+                "field": "body",
+            }
+    elapsed = time.monotonic() - started
+    assert served_after < DEADLINE_SECONDS + MARGIN_SECONDS
+    assert DEADLINE_SECONDS <= elapsed < DEADLINE_SECONDS + MARGIN_SECONDS, elapsed
+    with server.client() as client:
+        assert client.get(f"/v1/models/{model_id}").json()["scene_count"] == 1
+
+
+def test_a_trickling_chunked_body_meets_the_same_deadline(server: ServerProcess) -> None:
+    """The deadline is for the whole body, not between two chunks: a chunk every 0.2 s does not keep it open."""
+    stop = threading.Event()
+    with _connect(server) as sock:
+        sock.sendall(_headers("/v1/models", "Transfer-Encoding: chunked\r\n"))
+        started = time.monotonic()
+
+        def trickle() -> None:
+            while not stop.is_set():
+                try:
+                    sock.sendall(b"1\r\n \r\n")
+                except OSError:
+                    return
+                stop.wait(0.2)
+
+        sender = threading.Thread(target=trickle)
+        sender.start()
+        try:
+            status, error, _ = _error_of(_read_until_closed(sock))
+        finally:
+            stop.set()
+            sender.join()
+        assert status == 408 and error["field"] == "body"
+        assert DEADLINE_SECONDS <= time.monotonic() - started < DEADLINE_SECONDS + MARGIN_SECONDS
+
+
+def test_a_slow_body_that_arrives_in_time_is_served(server: ServerProcess) -> None:
+    body = json.dumps({"name": "slow but in time"}).encode()
+    with _connect(server) as sock:
+        sock.sendall(_headers("/v1/models", f"Content-Length: {len(body)}\r\nConnection: close\r\n"))
+        for start in range(0, len(body), 8):
+            sock.sendall(body[start : start + 8])
+            time.sleep(0.05)
+        status, created, _ = _error_of(_read_until_closed(sock))
+    assert status == 201 and created["name"] == "slow but in time"
+
+
+def test_a_chunked_body_over_the_limit_is_a_413_on_the_body_from_the_real_server(server: ServerProcess) -> None:
+    """Exactly one byte over in the last chunk: the server has read everything it closes on (closing
+    on unread bytes would reset the connection, and the client could lose the answer)."""
+    with _connect(server) as sock:
+        sock.sendall(_headers("/v1/models", "Transfer-Encoding: chunked\r\n"))
+        chunk = b"[" + b"0," * 4095 + b"0"
+        for _ in range(8):
+            sock.sendall(b"%x\r\n%s\r\n" % (len(chunk), chunk))
+        sock.sendall(b"1\r\n \r\n")
+        status, error, head = _error_of(_read_until_closed(sock))
+    assert status == 413 and error["error"] == "payload_too_large" and error["field"] == "body"
+    assert b"connection: close" in head

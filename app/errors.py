@@ -74,6 +74,14 @@ class SceneNotFound(ContextwebError):
         super().__init__(f"model {model_id!r} has no scene {scene_id}", field="path.scene_id")
 
 
+class ContextNotFound(ContextwebError):
+    error = "context_not_found"
+    status_code = 404
+
+    def __init__(self, model_id: str, context: int, context_count: int) -> None:
+        super().__init__(f"model {model_id!r} has {context_count} context(s), no context {context}", field="path.context")
+
+
 class ModelNotFitted(ContextwebError):
     error = "model_not_fitted"
     status_code = 409

@@ -311,6 +311,7 @@ def _events_of_answer(model_id: str, answer: dict[str, Any]) -> list[dict[str, A
         context_count=answer["context_count"],
         context_posterior=answer["context_posterior"],
         map_context=answer["map_context"],
+        map_context_label=answer.get("map_context_label"),  # absent from answers stored before labels existed
         active_concepts=[obj["active_concepts"] for obj in answer["objects"]],
         created_at=answer["created_at"],
     )

@@ -270,6 +270,8 @@ class SceneRead(ResponseModel):
     previous_context_count: int
     context_posterior: list[float]
     map_context: int
+    map_context_label: str | None = None
+    """The map context's label, as an operator named it when the scene was answered."""
     objects: list[ObjectAnalysis] = Field(default_factory=list)
     created_at: datetime | None = None
 
@@ -336,12 +338,19 @@ class ConceptProbability(ResponseModel):
     probability: float
 
 
+class DistinctiveConcept(ConceptProbability):
+    relevance: float
+
+
 class Context(ResponseModel):
-    """A discovered context: its index, how many scenes it is the MAP context of, its top concepts P(c | χ)."""
+    """A discovered context: its index and label, how many scenes it is the MAP context of, its top
+    concepts P(c | χ) and its distinctive ones (LDAvis relevance)."""
 
     context: int
+    label: str | None = None
     scene_count: int
     top_concepts: list[ConceptProbability]
+    distinctive_concepts: list[DistinctiveConcept] = Field(default_factory=list)
 
 
 class Contexts(ResponseModel):
@@ -378,6 +387,7 @@ class SceneEvent(ResponseModel):
     context_count: int
     context_posterior: list[float]
     map_context: int
+    map_context_label: str | None = None
     active_concepts: list[list[str]]
     created_at: datetime
 

@@ -184,6 +184,17 @@ class TrainingObject(Base):
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
 
 
+class ContextLabel(Base):
+    """The name an operator gave a context; contexts keep their index as K grows (alembic 0004)."""
+
+    __tablename__ = "context_label"
+
+    model_id: Mapped[str] = mapped_column(_model_fk(), primary_key=True)
+    context: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
+    label: Mapped[str] = mapped_column(String(80))
+    updated_at: Mapped[datetime] = mapped_column(default=utc_now, onupdate=utc_now)
+
+
 class StorageProbe(Base):
     """One row per serving process, rewritten by the readiness probe to test that writes succeed."""
 

@@ -135,6 +135,7 @@ def assert_events_match(events: list[dict[str, Any]], answers: list[dict[str, An
                 "context_count": answer["context_count"],
                 "context_posterior": answer["context_posterior"],
                 "map_context": answer["map_context"],
+                "map_context_label": answer["map_context_label"],
                 "active_concepts": [obj["active_concepts"] for obj in answer["objects"]],
                 "created_at": answer["created_at"],
             }

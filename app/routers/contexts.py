@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Path, Query
 
-from app.deps import ModelDep, ReadAccess
-from app.errors import ModelNotFound, Unauthorized, error_responses
-from app.schemas.contexts import ContextsRead
+from app.deps import ModelDep, ReadAccess, ReadSessionDep, WriteAccess, WriteSessionDep
+from app.errors import ContextNotFound, Forbidden, InvalidInput, ModelNotFound, Unauthorized, error_responses
+from app.schemas.contexts import ContextLabelRead, ContextLabelUpdate, ContextsRead
 from app.services import contexts as context_service
 from core.context.metrics import RELEVANCE_WEIGHT
 
@@ -23,6 +23,7 @@ router = APIRouter(prefix="/v1/models/{model_id}", tags=["contexts"])
 )
 def list_contexts(
     model: ModelDep,
+    session: ReadSessionDep,
     top: Annotated[int, Query(ge=1, le=1_000)] = 10,
     relevance_weight: Annotated[
         float,
@@ -34,4 +35,19 @@ def list_contexts(
         ),
     ] = RELEVANCE_WEIGHT,
 ) -> ContextsRead:
-    return context_service.list_contexts(model, top, relevance_weight)
+    return context_service.list_contexts(session, model, top, relevance_weight)
+
+
+@router.patch(
+    "/contexts/{context}",
+    summary="Name a context (the label stays on it as K grows)",
+    dependencies=[WriteAccess],
+    responses=error_responses(ModelNotFound, ContextNotFound, InvalidInput, Unauthorized, Forbidden),
+)
+def label_context(
+    body: ContextLabelUpdate,
+    model: ModelDep,
+    session: WriteSessionDep,
+    context: Annotated[int, Path(ge=0, le=10_000, description="The context's index.")],
+) -> ContextLabelRead:
+    return context_service.label_context(session, model, context, body.label)

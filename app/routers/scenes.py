@@ -93,8 +93,8 @@ def _learn_scene(
     dependencies=[ReadAccess],
     responses=error_responses(*_ANALYSIS_ERRORS),
 )
-def infer_scene(body: SceneCreate, model: ModelDep) -> SceneRead:
-    return scene_service.infer_scene(model, body)
+def infer_scene(body: SceneCreate, model: ModelDep, session: ReadSessionDep) -> SceneRead:
+    return scene_service.infer_scene(model, body, session)
 
 
 @router.get(

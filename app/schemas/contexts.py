@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from pydantic import ConfigDict, Field
+from typing import Annotated
 
-from app.schemas.common import ReadSchema
+from pydantic import ConfigDict, Field, StringConstraints
+
+from app.schemas.common import ReadSchema, RequestSchema
 from app.schemas.scenes import ConceptKind
 
 
@@ -20,8 +22,27 @@ class DistinctiveConcept(ConceptProbability):
     )
 
 
+ContextLabel = Annotated[
+    str,
+    StringConstraints(strip_whitespace=True, min_length=1, max_length=80, pattern=r"^[^\x00-\x1f\x7f]+$"),
+]
+
+
+class ContextLabelUpdate(RequestSchema):
+    label: ContextLabel | None = Field(
+        description="The context's name, 1-80 printable characters; null removes it.", examples=["kitchen"]
+    )
+
+
+class ContextLabelRead(ReadSchema):
+    model_id: str
+    context: int
+    label: str | None
+
+
 class ContextRead(ReadSchema):
     context: int = Field(description="Index of the context, 0 … K-1; stable: a context keeps its index as K grows.")
+    label: str | None = Field(description="The name an operator gave it (PATCH …/contexts/{context}), or null.")
     scene_count: int = Field(description="Learned scenes whose most probable context this is (current assignments).")
     top_concepts: list[ConceptProbability] = Field(description="The most probable concepts, by P(c | χ).")
     distinctive_concepts: list[DistinctiveConcept] = Field(
@@ -41,6 +62,7 @@ class ContextsRead(ReadSchema):
                     "contexts": [
                         {
                             "context": 0,
+                            "label": "kitchen",
                             "scene_count": 4,
                             "top_concepts": [{"name": "cup", "kind": "noun", "probability": 0.21}],
                             "distinctive_concepts": [

@@ -114,6 +114,9 @@ class SceneRead(ReadSchema):
     previous_context_count: int = Field(description="K before this scene; larger K means a context was discovered.")
     context_posterior: list[float] = Field(description="θ = P(χ | scene) over the K contexts.")
     map_context: int = Field(description="The most probable context.")
+    map_context_label: str | None = Field(
+        None, description="The most probable context's label as it stood when the scene was answered, or null."
+    )
     objects: list[ObjectAnalysis]
     created_at: datetime | None = None
 

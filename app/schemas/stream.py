@@ -28,6 +28,7 @@ class SceneEvent(ReadSchema):
     context_count: int
     context_posterior: list[float]
     map_context: int
+    map_context_label: str | None = Field(None, description="The label of the map context, as in the scene's answer.")
     active_concepts: list[list[str]] = Field(description="Active concepts of each object, in the scene's order.")
     created_at: datetime
 

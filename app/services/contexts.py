@@ -4,13 +4,17 @@ scenes each one explains best."""
 from __future__ import annotations
 
 import numpy as np
+from sqlalchemy.orm import Session
 
+from app.errors import ContextNotFound
 from app.registry import ModelRuntime
-from app.schemas.contexts import ConceptProbability, ContextRead, ContextsRead, DistinctiveConcept
+from app.schemas.contexts import ConceptProbability, ContextLabelRead, ContextRead, ContextsRead, DistinctiveConcept
+from storage.repositories import contexts as context_repository
 
 
-def list_contexts(model: ModelRuntime, top: int, relevance_weight: float) -> ContextsRead:
-    """Read under the model's lock: waits at most for the update running now."""
+def list_contexts(session: Session, model: ModelRuntime, top: int, relevance_weight: float) -> ContextsRead:
+    """Read under the model's lock (waits at most for the update running now), with the labels."""
+    labels = context_repository.context_labels(session, model.id)
     with model.lock:
         lda = model.incremental_lda
         top_concepts = lda.top_concepts(top)
@@ -28,6 +32,7 @@ def list_contexts(model: ModelRuntime, top: int, relevance_weight: float) -> Con
         contexts=[
             ContextRead(
                 context=k,
+                label=labels.get(k),
                 scene_count=0 if scene_counts is None else int(scene_counts[k]),
                 top_concepts=[
                     ConceptProbability(name=name, kind=kinds[index[name]], probability=p) for name, p in concepts
@@ -40,3 +45,12 @@ def list_contexts(model: ModelRuntime, top: int, relevance_weight: float) -> Con
             for k, concepts in enumerate(top_concepts)
         ],
     )
+
+
+def label_context(session: Session, model: ModelRuntime, context: int, label: str | None) -> ContextLabelRead:
+    """Name one of the model's contexts (None removes the name); 404 for a context it does not have."""
+    context_count = model.incremental_lda.n_contexts
+    if context >= context_count:
+        raise ContextNotFound(model.id, context, context_count)
+    context_repository.set_context_label(session, model.id, context, label)
+    return ContextLabelRead(model_id=model.id, context=context, label=label)

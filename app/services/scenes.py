@@ -26,8 +26,10 @@ Then under the model's write lock, :func:`learn_scene`:
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from functools import partial
 
 import numpy as np
 from sqlalchemy.orm import Session
@@ -41,6 +43,7 @@ from app.services.perception import ObjectResult, Perception, SceneAnalysis, ana
 from core.context.incremental import SceneUpdate
 from core.errors import InvalidInputError
 from storage.database import pipelined
+from storage.repositories import contexts as context_repository
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import scenes as scene_repository
 from storage.repositories.incremental_lda import SceneChanges, reassigned_rows
@@ -108,21 +111,25 @@ def learn_scene(
     model.changing = True  # from here until the commit, memory holds what the database may not
     update = model.incremental_lda.learn_scene(words)
     model.word_kinds.extend(_kind(model, body, name) for name in update.vocabulary_additions)
-    answer = _answer(model, update, analysis, created_at=datetime.now(UTC))
+    answer = _answer(
+        model, update, analysis, datetime.now(UTC), partial(context_repository.context_label, session, model.id)
+    )
     answer_json = answer.model_dump_json()
     _save(session, model, update, first_token, version, answer, answer_json, idempotency_key, request_hash)
     after_commit(session, model.publish_summary)
     return answer_json, False
 
 
-def infer_scene(model: ModelRuntime, body: SceneCreate) -> SceneRead:
-    """The same analysis as :func:`learn_scene`, changing nothing (fold-in against the current counts)."""
+def infer_scene(model: ModelRuntime, body: SceneCreate, session: Session | None = None) -> SceneRead:
+    """The same analysis as :func:`learn_scene`, changing nothing (fold-in against the current counts);
+    with a ``session``, the map context's label too."""
     analysis = analyse_objects(model.perception, body.objects, model.id)
     words = _scene_words(analysis)
     with model.lock:
         analysis = in_context(model.perception, model.incremental_lda, analysis, sigma=model.sigma, seed=model.seed)
         posterior = model.incremental_lda.infer_scene(words, seed=model.seed)
     context_count = int(posterior.shape[0])
+    map_context = int(np.argmax(posterior))
     return SceneRead(
         model_id=model.id,
         scene_id=None,
@@ -130,7 +137,8 @@ def infer_scene(model: ModelRuntime, body: SceneCreate) -> SceneRead:
         context_count=context_count,
         previous_context_count=context_count,
         context_posterior=posterior.tolist(),
-        map_context=int(np.argmax(posterior)),
+        map_context=map_context,
+        map_context_label=None if session is None else context_repository.context_label(session, model.id, map_context),
         objects=[_object_analysis(result) for result in analysis.objects],
     )
 
@@ -175,10 +183,18 @@ def _object_analysis(result: ObjectResult) -> ObjectAnalysis:
     )
 
 
-def _answer(model: ModelRuntime, update: SceneUpdate, analysis: SceneAnalysis, created_at: datetime) -> SceneRead:
+def _answer(
+    model: ModelRuntime,
+    update: SceneUpdate,
+    analysis: SceneAnalysis,
+    created_at: datetime,
+    labels: Callable[[int], str | None],
+) -> SceneRead:
     """The scene's answer, built without validation: every value is already of its field's
-    type (Python ints, floats and strs; validating ~450 numbers cost ≈ 0.1 ms a scene)."""
+    type (Python ints, floats and strs; validating ~450 numbers cost ≈ 0.1 ms a scene).
+    ``labels`` gives a context's label (one primary-key read of the write's session)."""
     posterior = update.context_posterior
+    map_context = int(np.argmax(posterior))
     return SceneRead.model_construct(
         model_id=model.id,
         scene_id=int(update.scene_index),
@@ -186,7 +202,8 @@ def _answer(model: ModelRuntime, update: SceneUpdate, analysis: SceneAnalysis, c
         context_count=int(update.contexts_after),
         previous_context_count=int(update.contexts_before),
         context_posterior=posterior.tolist(),
-        map_context=int(np.argmax(posterior)),
+        map_context=map_context,
+        map_context_label=labels(map_context),
         objects=[
             ObjectAnalysis.model_construct(
                 level=result.level,

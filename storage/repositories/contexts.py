@@ -1,0 +1,29 @@
+"""Queries on the ``context_label`` table: the names operators give contexts."""
+
+from __future__ import annotations
+
+from sqlalchemy import delete, select
+from sqlalchemy.orm import Session
+
+from storage.models import ContextLabel, utc_now
+
+
+def context_labels(session: Session, model_id: str) -> dict[int, str]:
+    """Every labelled context of ``model_id``: context index → label."""
+    rows = session.execute(select(ContextLabel.context, ContextLabel.label).where(ContextLabel.model_id == model_id))
+    return {context: label for context, label in rows}
+
+
+def context_label(session: Session, model_id: str, context: int) -> str | None:
+    """The label of one context, or None (one primary-key read)."""
+    return session.scalar(
+        select(ContextLabel.label).where(ContextLabel.model_id == model_id, ContextLabel.context == context)
+    )
+
+
+def set_context_label(session: Session, model_id: str, context: int, label: str | None) -> None:
+    """Name context ``context`` (None removes its label)."""
+    if label is None:
+        session.execute(delete(ContextLabel).where(ContextLabel.model_id == model_id, ContextLabel.context == context))
+        return
+    session.merge(ContextLabel(model_id=model_id, context=context, label=label, updated_at=utc_now()))

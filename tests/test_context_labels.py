@@ -1,0 +1,89 @@
+"""Operators name contexts: labels persist, every process sees them, and they stay on their context as K grows."""
+
+from __future__ import annotations
+
+import numpy as np
+from fastapi.testclient import TestClient
+
+from app.main import create_app
+from tests.conftest import CONTEXT_CONCEPTS, FAST_HYPERPARAMETERS, make_settings
+
+
+def _room_scene(room: str, rng: np.random.Generator) -> dict:
+    return {"objects": [{"concepts": list(rng.choice(CONTEXT_CONCEPTS[room], 4, replace=False))} for _ in range(3)]}
+
+
+def _labels(client: TestClient, model_id: str) -> dict[int, str | None]:
+    contexts = client.get(f"/v1/models/{model_id}/contexts").json()["contexts"]
+    return {context["context"]: context["label"] for context in contexts}
+
+
+def test_a_label_persists_is_seen_by_another_process_and_can_be_removed(database_url: str) -> None:
+    rng = np.random.default_rng(3)
+    with TestClient(create_app(make_settings(database_url))) as first:
+        model_id = first.post("/v1/models", json={"name": "t", "hyperparameters": FAST_HYPERPARAMETERS}).json()["id"]
+        assert first.post(f"/v1/models/{model_id}/scenes", json=_room_scene("kitchen", rng)).status_code == 201
+        with TestClient(create_app(make_settings(database_url))) as second:  # another process on the database
+            answer = first.patch(f"/v1/models/{model_id}/contexts/0", json={"label": "  kitchen "})
+            assert answer.status_code == 200
+            assert answer.json() == {"model_id": model_id, "context": 0, "label": "kitchen"}
+            assert _labels(second, model_id) == {0: "kitchen"}
+            assert second.patch(f"/v1/models/{model_id}/contexts/0", json={"label": "galley"}).status_code == 200
+            assert _labels(first, model_id) == {0: "galley"}
+    with TestClient(create_app(make_settings(database_url))) as restarted:
+        assert _labels(restarted, model_id) == {0: "galley"}
+        assert restarted.patch(f"/v1/models/{model_id}/contexts/0", json={"label": None}).json()["label"] is None
+        assert _labels(restarted, model_id) == {0: None}
+
+
+def test_labels_are_refused_clearly(client: TestClient, model_id: str) -> None:
+    url = f"/v1/models/{model_id}/contexts"
+    client.post(f"/v1/models/{model_id}/scenes", json=_room_scene("kitchen", np.random.default_rng(0)))
+    count = client.get(url).json()["context_count"]
+    missing = client.patch(f"{url}/{count}", json={"label": "attic"})
+    assert missing.status_code == 404 and missing.json()["error"] == "context_not_found"
+    assert missing.json()["field"] == "path.context"
+    for label in ("", "   ", "x" * 81, "line\nbreak"):
+        refused = client.patch(f"{url}/0", json={"label": label})
+        assert refused.status_code == 422 and refused.json()["field"] == "label", (label, refused.json())
+    assert client.patch(f"{url}/0", json={}).status_code == 422
+    assert client.patch("/v1/models/nope/contexts/0", json={"label": "x"}).status_code == 404
+
+
+def test_a_label_stays_on_its_context_when_k_grows(client: TestClient, model_id: str) -> None:
+    rng = np.random.default_rng(8)
+    url = f"/v1/models/{model_id}/contexts"
+    for _ in range(6):
+        assert client.post(f"/v1/models/{model_id}/scenes", json=_room_scene("kitchen", rng)).status_code == 201
+    assert client.get(url).json()["context_count"] == 1
+    client.patch(f"{url}/0", json={"label": "kitchen"})
+    for scene in range(30):
+        room = ("playroom", "workshop")[scene % 2]
+        client.post(f"/v1/models/{model_id}/scenes", json=_room_scene(room, rng))
+    contexts = client.get(url, params={"top": 4}).json()["contexts"]
+    assert len(contexts) >= 2
+    assert [context["label"] for context in contexts] == ["kitchen"] + [None] * (len(contexts) - 1)
+    kitchen_only = (
+        set(CONTEXT_CONCEPTS["kitchen"]) - set(CONTEXT_CONCEPTS["playroom"]) - set(CONTEXT_CONCEPTS["workshop"])
+    )
+    assert {c["name"] for c in contexts[0]["top_concepts"]} <= kitchen_only | {"hard"}
+
+
+def test_scene_answers_the_stream_and_inference_carry_the_map_contexts_label(client: TestClient, model_id: str) -> None:
+    rng = np.random.default_rng(4)
+    scene = _room_scene("kitchen", rng)
+    first = client.post(f"/v1/models/{model_id}/scenes", json=scene).json()
+    assert first["map_context_label"] is None
+    client.patch(f"/v1/models/{model_id}/contexts/{first['map_context']}", json={"label": "kitchen"})
+    with client.websocket_connect(f"/v1/models/{model_id}/stream") as stream:
+        stream.receive_json()  # hello
+        answer = client.post(f"/v1/models/{model_id}/scenes", json=scene).json()
+        event = stream.receive_json()
+    assert answer["map_context"] == first["map_context"] and answer["map_context_label"] == "kitchen"
+    assert event["type"] == "scene" and event["scene_id"] == answer["scene_id"]
+    assert event["map_context_label"] == "kitchen"
+    assert client.get(f"/v1/models/{model_id}/scenes/{answer['scene_id']}").json() == answer
+    # A stored answer keeps the label it was given, like the rest of the answer.
+    client.patch(f"/v1/models/{model_id}/contexts/{first['map_context']}", json={"label": "galley"})
+    assert client.get(f"/v1/models/{model_id}/scenes/{answer['scene_id']}").json()["map_context_label"] == "kitchen"
+    assert client.post(f"/v1/models/{model_id}/infer", json=scene).json()["map_context_label"] == "galley"

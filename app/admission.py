@@ -110,6 +110,11 @@ class Admission:
         """Threads of ``/readyz`` apart from the routes' pool: a probe never waits behind blocked writes."""
         self._buckets: OrderedDict[str, _Bucket] = OrderedDict()
 
+    def admitted(self, model_id: str) -> int:
+        """Writes to ``model_id`` admitted: the one in progress and those waiting behind it."""
+        gate = self._gates.get(model_id)
+        return 0 if gate is None else gate.users
+
     def waiting(self, model_id: str) -> int:
         """Writes to ``model_id`` waiting behind the one in progress."""
         gate = self._gates.get(model_id)

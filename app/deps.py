@@ -219,6 +219,8 @@ def model_write(state: AppState, model: ModelRuntime) -> Iterator[ModelWrite]:
             state.storage.record_success()
         except BaseException as error:
             failed = is_storage_failure(error)
+            if failed and state.metrics is not None:
+                state.metrics.storage_failed("busy" if is_storage_busy(error) else "unavailable")
             if failed and not is_storage_busy(error):  # a lock held elsewhere says nothing of the database's health
                 state.storage.record_failure(storage_failure_reason(error))
             if model.changing:

@@ -28,6 +28,7 @@ from app.admission import Admission, RefuseBusyWrites, admission_of
 from app.auth import close_revoked_streams
 from app.errors import InvalidInput, ModelUnavailable, StorageUnavailable, add_exception_handlers, error_responses
 from app.feed import SceneFeed
+from app.metrics import ModelMetrics
 from app.middleware import RequestBodyLimits, memoise_route_metrics
 from app.registry import ModelRegistry
 from app.routers import contexts, health, keys, models, plans, scenes, stream, training
@@ -65,7 +66,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(_app: FastAPI) -> AsyncIterator[LifespanState]:
         anyio.to_thread.current_default_thread_limiter().total_tokens = settings.worker_threads
         state = await anyio.to_thread.run_sync(_start, settings)
+        state.metrics = model_metrics.events
         admission = admission_of(settings)
+        model_metrics.state.bind(state, admission)
         state.hub.bind(asyncio.get_running_loop())
         state.feed.start()
         revocations = asyncio.create_task(close_revoked_streams(state.hub, state.read_sessions))
@@ -95,7 +98,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.include_router(router, responses=error_responses(InvalidInput, StorageUnavailable, ModelUnavailable))
     app.include_router(keys.router, responses=error_responses(InvalidInput, StorageUnavailable))
     app.include_router(stream.router)
-    Instrumentator(registry=CollectorRegistry(), excluded_handlers=["/metrics"]).instrument(app).expose(
+    metrics_registry = CollectorRegistry()
+    model_metrics = ModelMetrics(metrics_registry, settings.metrics_max_models)
+    Instrumentator(registry=metrics_registry, excluded_handlers=["/metrics"]).instrument(app).expose(
         app, endpoint="/metrics", tags=["health"], summary="Prometheus metrics"
     )
     memoise_route_metrics(app)

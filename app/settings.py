@@ -61,6 +61,9 @@ class Settings(BaseSettings):
         default_factory=list,
         description="Browser origins (JSON list) that may open the stream; others are closed with 4403. Empty: any.",
     )
+    metrics_max_models: int = Field(
+        100, ge=1, description="Models with their own `model` label in /metrics; later ones share `_other`."
+    )
     worker_threads: int = Field(16, ge=1, description="Threads running the blocking routes (numba, database).")
     model_write_queue: int = Field(
         32, ge=0, le=10_000, description="Writes a model keeps waiting behind the one in progress; more is a 429."

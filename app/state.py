@@ -8,6 +8,7 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.feed import SceneFeed
+from app.metrics import ModelEvents
 from app.registry import ModelRegistry
 from app.settings import Settings
 from app.storage_health import StorageHealth
@@ -25,5 +26,7 @@ class AppState:
     registry: ModelRegistry
     hub: StreamHub
     feed: SceneFeed
+    metrics: ModelEvents | None = None
+    """The models' event metrics (app/metrics.py); None in an app built without them."""
     storage: StorageHealth = field(default_factory=StorageHealth)
     models_loaded: bool = field(default=False)

@@ -74,3 +74,5 @@ async def delete_model(model: WriteModelDep, state: StateDep, admission: Admissi
         model,
         lambda session: model_service.delete_model(session, state.registry, state.hub, model),
     )
+    if state.metrics is not None:
+        state.metrics.model_deleted(model.id)  # its series go; its label is free for another model

@@ -82,7 +82,9 @@ def _learn_scene(
     """On the admitted worker thread: perception before the model's lock, the learning under it."""
     prepared = scene_service.prepare_scene(model, body)
     with model_write(state, model) as write:
-        answer, replayed = scene_service.learn_scene(write.session, model, write.version, prepared, idempotency_key)
+        answer, replayed = scene_service.learn_scene(
+            write.session, model, write.version, prepared, idempotency_key, state.metrics
+        )
         write.version_saved, write.unchanged = not replayed, replayed
     return answer, replayed
 

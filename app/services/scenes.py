@@ -26,6 +26,7 @@ Then under the model's write lock, :func:`learn_scene`:
 from __future__ import annotations
 
 import hashlib
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -35,6 +36,7 @@ import numpy as np
 from sqlalchemy.orm import Session
 
 from app.errors import ContextwebError, IdempotencyKeyReused, InvalidInput, SceneNotFound
+from app.metrics import ModelEvents
 from app.registry import ModelRuntime, jsonable
 from app.schemas.common import Page
 from app.schemas.scenes import ObjectAnalysis, SceneCreate, SceneRead, SceneSummary
@@ -92,10 +94,12 @@ def learn_scene(
     version: int,
     prepared: PreparedScene,
     idempotency_key: str | None,
+    metrics: ModelEvents | None = None,
 ) -> tuple[str, bool]:
     """Learn the prepared scene online as the model's write ``version``; returns the answer (the
     ``SceneRead`` JSON, stored byte for byte) and whether it is a stored one (idempotent replay).
-    A learned scene stores ``version`` in its state row (the caller need not)."""
+    A learned scene stores ``version`` in its state row (the caller need not); ``metrics`` count
+    the online update once it is committed."""
     body, request_hash = prepared.body, prepared.request_hash
     if idempotency_key is not None:
         stored = scene_repository.find_by_idempotency_key(session, model.id, idempotency_key)
@@ -109,7 +113,9 @@ def learn_scene(
     analysis = in_context(model.perception, model.incremental_lda, analysis, sigma=model.sigma, seed=model.seed)
     first_token = model.incremental_lda.lda_state.n_tokens
     model.changing = True  # from here until the commit, memory holds what the database may not
+    started = time.perf_counter()
     update = model.incremental_lda.learn_scene(words)
+    update_seconds = time.perf_counter() - started
     model.word_kinds.extend(_kind(model, body, name) for name in update.vocabulary_additions)
     answer = _answer(
         model, update, analysis, datetime.now(UTC), partial(context_repository.context_label, session, model.id)
@@ -117,6 +123,8 @@ def learn_scene(
     answer_json = answer.model_dump_json()
     _save(session, model, update, first_token, version, answer, answer_json, idempotency_key, request_hash)
     after_commit(session, model.publish_summary)
+    if metrics is not None:
+        after_commit(session, partial(metrics.scene_learned, model.id, update_seconds, update.growth_checked))
     return answer_json, False
 
 

@@ -1,4 +1,6 @@
-"""The dashboard in headless Chromium: simulated scenes stream in, the contexts and the charts follow.
+"""The dashboard in headless Chromium: simulated scenes stream in, the contexts and the charts follow;
+contexts show their operators' labels and distinctive concepts; the latest object's three stages match
+the scene's answer.
 
 Needs Debian's ``chromium`` and ``chromium-driver`` (``make test`` installs them where it can, see
 docs/deployment.md) and selenium; skipped, saying so, only where no browser is installed.
@@ -94,6 +96,61 @@ def _data(driver, element_id: str, name: str) -> str:
     return driver.find_element("id", element_id).get_attribute(f"data-{name}") or ""
 
 
+def _texts(driver, css: str) -> list[str]:
+    return [node.text for node in driver.find_elements("css selector", css)]
+
+
+def _assert_contexts_as_the_api_lists_them(browser, listing: dict, every_concept: dict) -> None:
+    """Each card: its label (or "context k"), then its distinctive concepts in the API's order with P(c | χ).
+
+    ``every_concept`` lists each context's whole vocabulary: the concept most probable in all contexts
+    (the largest least P(c | χ), e.g. "grasp": every object can be grasped) leads no card, and the
+    cards lead with different concepts, which is what lets a person tell them apart."""
+    assert len(listing["contexts"]) >= 2, "the workshop scenes make Incremental-LDA discover a context"
+    least = {}
+    for context in every_concept["contexts"]:
+        for concept in context["top_concepts"]:
+            least[concept["name"]] = min(least.get(concept["name"], 1.0), concept["probability"])
+    most_shared = max(least, key=least.__getitem__)
+    leaders = []
+    for context in listing["contexts"]:
+        card = f'#contexts .context[data-context="{context["context"]}"]'
+        assert _texts(browser, f"{card} .context-name") == [context["label"] or f"context {context['context']}"]
+        rows = browser.find_elements("css selector", f"{card} .distinctive .bar")
+        distinctive = context["distinctive_concepts"]
+        assert [row.get_attribute("data-concept") for row in rows] == [c["name"] for c in distinctive]
+        for row, concept in zip(rows, distinctive, strict=True):
+            shown = float(row.find_element("css selector", ".value").text)
+            assert abs(shown - concept["probability"]) <= 0.0005 + 1e-9, (concept, shown)
+        most_probable = browser.find_element("css selector", f"{card} .top-concepts").text
+        assert context["top_concepts"][0]["name"] in most_probable
+        leaders.append(rows[0].get_attribute("data-concept"))
+    assert most_shared not in leaders, (most_shared, leaders)
+    assert len(set(leaders)) == len(leaders), leaders
+
+
+def _assert_stages_match_the_answer(browser, answer: dict, nouns: list[str]) -> None:
+    """The latest object's rows: P(c) at perception, concept web and in context, as the scene's answer gave them."""
+    stages = ("perception", "web", "in_context")
+    obj = answer["objects"][-1]
+    assert all(obj[stage] for stage in stages), "a fitted model answers all three stages for a features-level object"
+    assert _texts(browser, "#stages thead th[data-stage]") == ["prototypes", "concept web", "in context"]
+    rows = browser.find_elements("css selector", "#stages tbody tr")
+    assert len(rows) >= 3
+    shown = [row.get_attribute("data-concept") for row in rows]
+    strongest = max(((p, name) for stage in stages for name, p in obj[stage].items()))[1]
+    assert strongest in shown
+    for row, name in zip(rows, shown, strict=True):
+        for stage in stages:
+            cell = row.find_element("css selector", f'td[data-stage="{stage}"] .value').text
+            assert abs(float(cell) - obj[stage][name]) <= 0.005 + 1e-9, (name, stage, cell, obj[stage][name])
+    for stage in stages:
+        noun = max((name for name in nouns if name in obj[stage]), key=obj[stage].__getitem__)
+        step = browser.find_element("css selector", f'#stages-nouns [data-stage="{stage}"]')
+        assert step.get_attribute("data-noun") == noun
+        assert abs(float(step.text.split()[-1]) - obj[stage][noun]) <= 0.005 + 1e-9
+
+
 def test_dashboard_follows_simulated_scenes_live(service: ServiceProcess, browser, tmp_path: Path) -> None:
     world = World(WorldConfig.paper(), seed=0)
     robot = Client(service.url, WRITE_KEY)
@@ -106,23 +163,48 @@ def test_dashboard_follows_simulated_scenes_live(service: ServiceProcess, browse
 
     browser.get(f"{service.url}/?key={READ_KEY}&model={model_id}")
     _wait(lambda: _data(browser, "connection", "mode") == "live", "the websocket to open")
+    assert _data(browser, "connection", "protocol") == "contextweb", "the stream's key goes in a subprotocol"
+    assert READ_KEY not in browser.current_url, "the page takes the key out of its address"
     _wait(lambda: _data(browser, "posterior-chart", "points") == "10", "the posterior chart to show 10 scenes")
     _wait(lambda: int(_data(browser, "contexts", "count") or 0) >= 1, "the contexts to appear")
     contexts_before = browser.find_element("id", "contexts").text
-    assert "χ0" in contexts_before and "grasp" in contexts_before, "every object of the paper's world can be grasped"
+    assert "context 0" in contexts_before, "an unlabelled context is named by its index"
+    assert "grasp" in contexts_before, "every object of the paper's world can be grasped"
     assert _data(browser, "concept-web", "nodes") == "29"
     _wait(lambda: _data(browser, "plan", "status") == "solved", "the plan")
     assert int(_data(browser, "plan", "pruned")) > 0, "a kitchen or playroom context prunes behaviours (Fig. 15)"
 
+    # The last scene at the feature level: its objects go through the prototypes, the web and the context.
     second = world.scenes(10, seed=2, contexts=["workshop"])
-    simulate(robot, model_id, world, [second], level="concepts", train_level=None, progress=False)
+    simulate(robot, model_id, world, [second[:-1]], level="concepts", train_level=None, progress=False)
+    simulate(robot, model_id, world, [second[-1:]], level="features", train_level=None, progress=False)
     _wait(lambda: _data(browser, "posterior-chart", "points") == "20", "the chart to follow the stream")
     _wait(lambda: _data(browser, "contexts", "scenes") == "20", "the contexts to be read again")
     assert _data(browser, "k-chart", "points") == "20"
     assert browser.find_element("id", "contexts").text != contexts_before
     assert int(_data(browser, "concept-web", "edges")) > 0
 
-    screenshot = tmp_path / "dashboard.png"
+    with httpx.Client(base_url=f"{service.url}/v1/models/{model_id}", headers={"X-API-Key": WRITE_KEY}) as api:
+        answer = api.get("/scenes/19").json()
+        _wait(lambda: _data(browser, "stages", "scene") == "19", "the stages of the latest object")
+        nouns = httpx.get(f"{service.url}/v1/models/{model_id}", headers=api.headers).json()["vocabulary"]["nouns"]
+        _assert_stages_match_the_answer(browser, answer, nouns)
+
+        # An operator names the latest scene's context; the open page picks the label up without a new scene.
+        workshop = answer["map_context"]
+        assert api.patch(f"/contexts/{workshop}", json={"label": "workshop"}).status_code == 200
+        card = f'#contexts .context[data-context="{workshop}"] .context-name'
+        _wait(lambda: _texts(browser, card) == ["workshop"], "the label in the context panel", timeout=30)
+        legend = f'#overview .legend span[data-context="{workshop}"]'
+        assert _texts(browser, legend) == ["workshop"], "the posterior chart's legend names the context"
+        assert "Scene 19 in workshop" in browser.find_element("id", "stages-scene").text
+        assert "in workshop" in browser.find_element("id", "web-caption").text
+        assert "workshop (χ" in browser.find_element("id", "plan").text, "the plan names its context"
+        listing = api.get("/contexts", params={"top": 8}).json()  # the dashboard's request
+        every_concept = api.get("/contexts", params={"top": 1000}).json()
+        _assert_contexts_as_the_api_lists_them(browser, listing, every_concept)
+
+    screenshot = tmp_path / "dashboard.png"  # docs/dashboard.png is a copy of it
     browser.save_screenshot(str(screenshot))
     print(f"dashboard screenshot: {screenshot}")
 

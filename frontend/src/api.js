@@ -10,9 +10,16 @@ export class ApiError extends Error {
   }
 }
 
+// A key given in the page's URL is kept for the tab's session and taken out of the address bar.
 export function readKey() {
-  const fromUrl = new URLSearchParams(location.search).get("key");
-  if (fromUrl) sessionStorage.setItem(KEY_STORAGE, fromUrl);
+  const params = new URLSearchParams(location.search);
+  const fromUrl = params.get("key");
+  if (fromUrl) {
+    sessionStorage.setItem(KEY_STORAGE, fromUrl);
+    params.delete("key");
+    const query = params.toString();
+    history.replaceState(null, "", `${location.pathname}${query ? `?${query}` : ""}${location.hash}`);
+  }
   return sessionStorage.getItem(KEY_STORAGE);
 }
 
@@ -34,16 +41,23 @@ async function call(method, path, body) {
 export const api = {
   models: () => call("GET", "/v1/models"),
   model: (id) => call("GET", `/v1/models/${id}`),
-  contexts: (id, top = 10) => call("GET", `/v1/models/${id}/contexts?top=${top}`),
+  contexts: (id, top = 8) => call("GET", `/v1/models/${id}/contexts?top=${top}`),
   scenes: (id, offset, limit) => call("GET", `/v1/models/${id}/scenes?offset=${offset}&limit=${limit}`),
   scene: (id, sceneId) => call("GET", `/v1/models/${id}/scenes/${sceneId}`),
   conceptWeb: (id) => call("GET", `/v1/models/${id}/concept-web`),
   plan: (id, request) => call("POST", `/v1/models/${id}/plans`, request),
 };
 
-export function streamUrl(modelId) {
+// The key travels in a subprotocol ("key.<key>", beside "contextweb", which the server answers
+// with): a key in the URL would end up in proxies' logs and the browser's history. A key that is
+// not a valid subprotocol token (RFC 6455 §4.1) falls back to the legacy ?api_key= query.
+const TOKEN = /^[!#$%&'*+\-.^_`|~0-9A-Za-z]+$/;
+
+export function openStream(modelId) {
   const scheme = location.protocol === "https:" ? "wss" : "ws";
+  const url = `${scheme}://${location.host}/v1/models/${modelId}/stream`;
   const key = readKey();
-  const query = key ? `?api_key=${encodeURIComponent(key)}` : "";
-  return `${scheme}://${location.host}/v1/models/${modelId}/stream${query}`;
+  if (!key) return new WebSocket(url);
+  if (TOKEN.test(key)) return new WebSocket(url, ["contextweb", `key.${key}`]);
+  return new WebSocket(`${url}?api_key=${encodeURIComponent(key)}`);
 }

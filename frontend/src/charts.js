@@ -1,5 +1,6 @@
 // The two time charts (uPlot): the stacked context posterior of recent scenes, and K per scene.
 import uPlot from "uplot";
+import { contextName } from "./contexts.js";
 import { contextColour } from "./kinds.js";
 
 const HEIGHT = 220;
@@ -24,6 +25,7 @@ export class PosteriorChart {
     this.legend = legend;
     this.plot = null;
     this.contextCount = 0;
+    this.names = [];
     window.addEventListener("resize", () => this.plot?.setSize({ width: width(element), height: HEIGHT }));
   }
 
@@ -52,17 +54,30 @@ export class PosteriorChart {
         data,
         this.element,
       );
-      this.legend.replaceChildren(
-        ...Array.from({ length: contextCount }, (_, k) => {
-          const item = document.createElement("span");
-          item.style.setProperty("--swatch", contextColour(k));
-          item.textContent = `χ${k}`;
-          return item;
-        }),
-      );
+      this.drawLegend();
     }
     this.element.dataset.points = String(scenes.length);
     this.element.dataset.contexts = String(contextCount);
+  }
+
+  // The contexts' names (labels, else "context k") for the legend; series labels only name the
+  // plot's own (hidden) legend, so a new name redraws the legend alone.
+  setNames(names) {
+    if (names.join("\n") === this.names.join("\n")) return;
+    this.names = names;
+    this.drawLegend();
+  }
+
+  drawLegend() {
+    this.legend.replaceChildren(
+      ...Array.from({ length: this.contextCount }, (_, k) => {
+        const item = document.createElement("span");
+        item.style.setProperty("--swatch", contextColour(k));
+        item.dataset.context = String(k);
+        item.textContent = contextName(this.names, k);
+        return item;
+      }),
+    );
   }
 }
 

@@ -1,18 +1,22 @@
-// The read-only dashboard: models; for one model its contexts, the posterior of recent scenes, K over
-// time, the latest object's concept web and a plan. Live over the websocket; polling when it is down.
+// The read-only dashboard: models; for one model its contexts (named by their labels), the posterior
+// of recent scenes, K over time, the latest object's concept web and its three stages, and a plan.
+// Live over the websocket; polling when it is down.
 import "uplot/dist/uPlot.min.css";
 import "./style.css";
-import { ApiError, api, saveKey, streamUrl } from "./api.js";
+import { ApiError, api, openStream, saveKey } from "./api.js";
 import { ContextCountChart, PosteriorChart } from "./charts.js";
 import { CooccurrenceCounter, renderConceptWeb } from "./conceptWeb.js";
-import { renderContexts } from "./contexts.js";
+import { contextName, contextNames, renderContexts } from "./contexts.js";
 import { renderPlan } from "./planning.js";
+import { renderStages } from "./stages.js";
 
 const RECENT_SCENES = 200;
 const SCENES_FOR_EDGES = 10;
 const POLL_MS = 3000;
 const RECONNECT_MS = 10000;
 const REFRESH_DEBOUNCE_MS = 800;
+// Labels change without a scene (an operator's PATCH, no stream event): re-read that often anyway.
+const LABELS_MS = 15000;
 // ?transport=polling: for networks whose proxies drop websockets.
 const POLLING_ONLY = new URLSearchParams(location.search).get("transport") === "polling";
 
@@ -25,6 +29,8 @@ $("posterior-chart").before(charts.posterior.legend);
 charts.posterior.legend.className = "legend";
 
 let session = null; // everything about the selected model; replaced when another model is chosen
+
+const sameItems = (a, b) => b !== null && a.length === b.length && a.every((item, i) => item === b[i]);
 
 function setConnection(mode) {
   const badge = $("connection");
@@ -90,7 +96,11 @@ class ModelSession {
     this.counter = new CooccurrenceCounter();
     this.fittedEdges = null;
     this.latest = null;
+    this.latestShown = null;
+    this.listingShown = null;
+    this.contextNames = [];
     this.plannedContext = undefined;
+    this.lastPlan = null;
     this.socket = null;
     this.timers = new Set();
     this.refreshTimer = null;
@@ -126,6 +136,14 @@ class ModelSession {
       return;
     }
     this.connect();
+    this.rereadLabels();
+  }
+
+  rereadLabels() {
+    this.later(() => {
+      this.scheduleRefresh();
+      this.rereadLabels();
+    }, LABELS_MS);
   }
 
   async fetchFittedEdges() {
@@ -174,23 +192,46 @@ class ModelSession {
     }, REFRESH_DEBOUNCE_MS);
   }
 
+  // Panels are redrawn only when what they show changed: the periodic re-read would otherwise
+  // reset a reader's scroll and tooltips every few seconds.
   async refresh() {
     const [listing] = await Promise.all([api.contexts(this.modelId), loadModels()]);
-    renderContexts($("contexts"), listing);
     markSelected(this.modelId);
+    const listingShown = JSON.stringify(listing);
+    if (listingShown !== this.listingShown) {
+      this.listingShown = listingShown;
+      this.contextNames = contextNames(listing);
+      renderContexts($("contexts"), listing, $("relevance"));
+      charts.posterior.setNames(this.contextNames);
+      if (this.lastPlan) renderPlan($("plan"), this.lastPlan, this.contextNames);
+    }
     const last = this.scenes[this.scenes.length - 1];
     if (!last) return;
-    this.latest = await api.scene(this.modelId, last.scene_id);
-    const object = this.latest.objects[this.latest.objects.length - 1];
-    renderConceptWeb($("concept-web"), {
-      vocabulary: this.model.vocabulary,
-      object,
-      edges: this.fittedEdges ?? this.counter.edges(),
-    });
-    $("web-caption").textContent =
-      `Scene ${last.scene_id}, object ${this.latest.objects.length} of ${this.latest.objects.length} (${object.level} level); ` +
-      `edges: ${this.fittedEdges ? "co-occurrence in training" : "co-occurrence in the scenes seen here"}.`;
+    const latestShown = [last.scene_id, this.fittedEdges, ...this.contextNames];
+    if (!sameItems(latestShown, this.latestShown)) {
+      this.latest = await api.scene(this.modelId, last.scene_id);
+      this.latestShown = latestShown;
+      this.renderLatestObject();
+    }
     if (this.plannedContext !== last.map_context) await this.plan();
+  }
+
+  // The latest scene's last object: its concept web, and its P(c) at the three stages.
+  renderLatestObject() {
+    const scene = this.latest;
+    const index = scene.objects.length - 1;
+    const object = scene.objects[index];
+    const vocabulary = this.model.vocabulary;
+    renderConceptWeb($("concept-web"), { vocabulary, object, edges: this.fittedEdges ?? this.counter.edges() });
+    const context = contextName(this.contextNames, scene.map_context);
+    const where =
+      `Scene ${scene.scene_id} in ${context} (P(χ | scene) = ${scene.context_posterior[scene.map_context].toFixed(2)}), ` +
+      `object ${index + 1} of ${scene.objects.length} (${object.level} level)`;
+    $("web-caption").textContent =
+      `${where}; edges: ${this.fittedEdges ? "co-occurrence in training" : "co-occurrence in the scenes seen here"}.`;
+    $("stages-scene").textContent = `${where}.`;
+    $("stages-scene").dataset.context = String(scene.map_context);
+    renderStages($("stages"), $("stages-nouns"), { object, vocabulary, sceneId: scene.scene_id, objectIndex: index });
   }
 
   async plan() {
@@ -201,10 +242,12 @@ class ModelSession {
     try {
       const plan = await api.plan(this.modelId, request);
       this.plannedContext = last?.map_context;
-      renderPlan($("plan"), plan);
+      this.lastPlan = plan;
+      renderPlan($("plan"), plan, this.contextNames);
     } catch (error) {
       if (!(error instanceof ApiError) || error.status === 401) throw error;
       this.plannedContext = last?.map_context;
+      this.lastPlan = null;
       $("plan").textContent = `No plan: ${error.message}`;
     }
   }
@@ -244,9 +287,12 @@ class ModelSession {
       this.later(() => this.poll(), POLL_MS);
       return;
     }
-    const socket = new WebSocket(streamUrl(this.modelId));
+    const socket = openStream(this.modelId);
     this.socket = socket;
-    socket.addEventListener("open", () => setConnection("live"));
+    socket.addEventListener("open", () => {
+      $("connection").dataset.protocol = socket.protocol;
+      setConnection("live");
+    });
     socket.addEventListener("message", (message) => this.onEvent(JSON.parse(message.data)));
     socket.addEventListener("close", () => {
       if (this.closed || this.socket !== socket) return;

@@ -1,5 +1,6 @@
 // A plan and its search tree as in Fig. 15: each level shows every behaviour, the pruned ones
 // crossed out and never expanded, the plan's own step highlighted and expanded to the next level.
+import { contextName } from "./contexts.js";
 import { svg } from "./svg.js";
 
 const ROW = 58;
@@ -43,9 +44,10 @@ function tree(plan) {
   return root;
 }
 
-export function renderPlan(container, plan) {
+export function renderPlan(container, plan, contextNames) {
   const summary = document.createElement("p");
-  const context = plan.context === null ? "no context (nothing pruned)" : `context χ${plan.context} (${plan.context_source})`;
+  const context =
+    plan.context === null ? "no context (nothing pruned)" : `${contextName(contextNames, plan.context)} (χ${plan.context}, ${plan.context_source})`;
   summary.textContent =
     `${plan.status}: ${plan.plan.length} step(s) in ${context}; ${plan.nodes_generated} nodes generated ` +
     `instead of ${plan.unpruned.nodes_generated} unpruned; ${plan.pruned.length} of ${plan.kept.length + plan.pruned.length} behaviours pruned.`;

@@ -5,7 +5,10 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import sys
 from typing import Any
+
+from sqlalchemy.exc import OperationalError
 
 from app.logs import log_config
 from app.settings import LOOPBACK_HOSTS, Settings
@@ -27,15 +30,43 @@ def add_serve_arguments(serve: argparse.ArgumentParser) -> None:
     )
 
 
+#: sysexits' EX_UNAVAILABLE: the database cannot be reached; a restart policy may try again.
+EXIT_DATABASE_UNAVAILABLE = 69
+
+
 def run_migrate(_args: argparse.Namespace) -> int:
     settings = Settings()
     engine = create_database_engine(settings.resolved_database_url, sqlite_synchronous=settings.sqlite_synchronous)
     try:
         upgrade_to_head(engine)
+    except OperationalError as error:
+        return _database_unavailable("migrate", engine.url.render_as_string(), error)
     finally:
         engine.dispose()
     print(f"{engine.url.render_as_string()} is at the latest schema")
     return 0
+
+
+def _database_unavailable(command: str, url: str, error: OperationalError) -> int:
+    """One line, not a traceback: a container restarting while its database is down would
+    otherwise log a hundred lines a try (docs/deployment.md)."""
+    reason = str(error.orig or error).strip().splitlines()[0]
+    print(f"contextweb {command}: the database {url} cannot be reached: {reason}", file=sys.stderr)
+    return EXIT_DATABASE_UNAVAILABLE
+
+
+def _prepare_database(settings: Settings) -> int | None:
+    """Migrate once, before any worker starts (exit status if the database cannot be reached, else
+    None): with ``--workers N`` each worker's start-up would otherwise race the others to create
+    the schema of an empty SQLite database (PostgreSQL's migrations take an advisory lock)."""
+    engine = create_database_engine(settings.resolved_database_url, sqlite_synchronous=settings.sqlite_synchronous)
+    try:
+        upgrade_to_head(engine)
+        return None
+    except OperationalError as error:
+        return _database_unavailable("serve", engine.url.render_as_string(), error)
+    finally:
+        engine.dispose()
 
 
 def run_serve(args: argparse.Namespace) -> int:
@@ -57,6 +88,8 @@ def run_serve(args: argparse.Namespace) -> int:
         )
     if args.workers < 1:
         raise SystemExit("contextweb serve: --workers must be at least 1")
+    if (status := _prepare_database(settings)) is not None:
+        return status
     if args.workers == 1:
         target: Any = create_app(settings)
     else:

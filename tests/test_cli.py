@@ -41,3 +41,22 @@ def test_experiment_prints_its_json_summary(tmp_path, capsys: pytest.CaptureFixt
     summary = json.loads(capsys.readouterr().out)
     assert summary == json.loads((tmp_path / "summary.json").read_text())
     assert build_parser("experiment").parse_args(["experiment", "mixed"]).seed == 0
+
+
+@pytest.mark.parametrize("command", ["migrate", "serve"])
+def test_an_unreachable_database_is_one_line_and_exit_69_not_a_traceback(command: str) -> None:
+    import os
+    import socket
+
+    with socket.socket() as closed:  # a port that refuses connections: bound, never listened on
+        closed.bind(("127.0.0.1", 0))
+        port = closed.getsockname()[1]
+        environment = {**os.environ, "CONTEXTWEB_DATABASE_URL": f"postgresql://robot:secret@127.0.0.1:{port}/fleet"}
+        environment.pop("CONTEXTWEB_WRITE_KEY", None)
+        result = subprocess.run(
+            [sys.executable, "-m", "app.cli", command], capture_output=True, text=True, env=environment, timeout=120
+        )
+    assert result.returncode == 69
+    assert "Traceback" not in result.stderr and "secret" not in result.stderr
+    errors = [line for line in result.stderr.splitlines() if line.startswith(f"contextweb {command}:")]
+    assert len(errors) == 1 and "cannot be reached" in errors[0] and f"127.0.0.1:{port}/fleet" in errors[0]

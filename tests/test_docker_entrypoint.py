@@ -52,6 +52,33 @@ def test_dockerfile_defaults() -> None:
     users = re.findall(r"^USER (\S+)$", text, re.MULTILINE)
     assert users and users[-1] not in ("root", "0")
     assert "curl" not in text.split("HEALTHCHECK", 1)[1]
+    final_stage = text.rsplit("\nFROM ", 1)[1]
+    # Without a write key the server would bind loopback only, unreachable yet healthy: the image refuses.
+    assert "CONTEXTWEB_ENVIRONMENT=production" in final_stage
+    # The kernels are compiled into the image by its user, after the sources are in place.
+    assert final_stage.index(f"USER {users[-1]}") < final_stage.index("RUN python docker/precompile.py")
+    assert "pip install --requirement docker/constraints.txt" in text
+
+
+def test_the_constraints_pin_every_server_dependency() -> None:
+    import tomllib
+
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+
+    project = tomllib.loads((DOCKER.parent / "pyproject.toml").read_text())["project"]
+    pinned = {}
+    for line in (DOCKER / "constraints.txt").read_text().splitlines():
+        if line and not line.startswith("#"):
+            requirement = Requirement(line)
+            (specifier,) = requirement.specifier
+            assert specifier.operator == "==", line
+            pinned[canonicalize_name(requirement.name)] = specifier.version
+    for dependency in project["dependencies"]:
+        requirement = Requirement(dependency)
+        name = canonicalize_name(requirement.name)
+        assert name in pinned, f"{name} is not pinned: run make constraints"
+        assert requirement.specifier.contains(pinned[name]), f"{name}=={pinned[name]} is outside {requirement.specifier}"
 
 
 def test_compose_commands_are_valid_cli_invocations() -> None:

@@ -61,7 +61,7 @@ from dataclasses import dataclass
 
 import librosa
 import numpy as np
-import scipy.stats
+import scipy.special
 from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
@@ -295,7 +295,8 @@ def planar_f_thresholds(neighbours: int) -> np.ndarray:
     """
     dof = np.arange(3 * neighbours - 5)
     thresholds = np.full(dof.size, np.inf)
-    thresholds[1:] = scipy.stats.f.ppf(1.0 - PLANAR_TEST_LEVEL, 3, dof[1:])
+    # F's quantile function itself (what scipy.stats.f.ppf calls), without importing scipy.stats (0.6 s).
+    thresholds[1:] = scipy.special.fdtri(3, dof[1:], 1.0 - PLANAR_TEST_LEVEL)
     thresholds.setflags(write=False)
     return thresholds
 

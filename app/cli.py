@@ -13,6 +13,8 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+from pydantic import ValidationError
+
 
 def _build_experiment(parser: argparse.ArgumentParser) -> None:
     from core.experiments import EXPERIMENTS
@@ -105,6 +107,9 @@ def _show_prototypes(args: argparse.Namespace) -> int:
     return 0
 
 
+#: sysexits' EX_CONFIG: the CONTEXTWEB_* settings are invalid.
+EXIT_BAD_SETTINGS = 78
+
 #: Command -> (help, builder of its parser). A builder imports what its command needs.
 COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
     "serve": ("run the web service (migrates the database first)", _build_serve),
@@ -133,7 +138,16 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     command = next((word for word in argv if not word.startswith("-")), None)
     args = build_parser(command).parse_args(argv)
-    return int(args.handler(args) or 0)
+    try:
+        return int(args.handler(args) or 0)
+    except ValidationError as error:  # the CONTEXTWEB_* settings: one line each, not a traceback
+        if error.title != "Settings":
+            raise
+        for problem in error.errors():
+            field = ".".join(str(part) for part in problem["loc"])
+            where = f"CONTEXTWEB_{field.upper()}: " if field else ""
+            print(f"contextweb {args.command}: {where}{problem['msg']}", file=sys.stderr)
+        return EXIT_BAD_SETTINGS
 
 
 if __name__ == "__main__":

@@ -60,3 +60,17 @@ def test_an_unreachable_database_is_one_line_and_exit_69_not_a_traceback(command
     assert "Traceback" not in result.stderr and "secret" not in result.stderr
     errors = [line for line in result.stderr.splitlines() if line.startswith(f"contextweb {command}:")]
     assert len(errors) == 1 and "cannot be reached" in errors[0] and f"127.0.0.1:{port}/fleet" in errors[0]
+
+
+def test_invalid_settings_are_one_line_each_and_exit_78() -> None:
+    import os
+
+    environment = {**os.environ, "CONTEXTWEB_ENVIRONMENT": "production", "CONTEXTWEB_PORT": "99999"}
+    environment.pop("CONTEXTWEB_WRITE_KEY", None)
+    result = subprocess.run(
+        [sys.executable, "-m", "app.cli", "migrate"], capture_output=True, text=True, env=environment, timeout=120
+    )
+    assert result.returncode == 78 and "Traceback" not in result.stderr
+    assert result.stderr.splitlines() == [
+        "contextweb migrate: CONTEXTWEB_PORT: Input should be less than or equal to 65535"
+    ], result.stderr

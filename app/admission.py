@@ -97,6 +97,7 @@ class Admission:
         model_write_queue_bytes: int = 0,
         rate_per_second: float = 0.0,
         rate_burst: int = 1,
+        write_threads: int = 4,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.model_write_queue = model_write_queue
@@ -106,6 +107,10 @@ class Admission:
         self.rate_burst = rate_burst
         self._clock = clock
         self._gates: dict[str, _ModelGate] = {}
+        self.write_threads = anyio.CapacityLimiter(write_threads)
+        """Threads the admitted writes of every model share, apart from the routes' pool: writes to
+        many models wait on the loop for one, not on the database's write lock in a thread that a
+        read needs."""
         self.probe_threads = anyio.CapacityLimiter(PROBE_THREADS)
         """Threads of ``/readyz`` apart from the routes' pool: a probe never waits behind blocked writes."""
         self._buckets: OrderedDict[str, _Bucket] = OrderedDict()
@@ -127,7 +132,7 @@ class Admission:
         once its work started, the work runs to its end (its thread cannot be interrupted) and
         the next write waits for it."""
         async with self._admitted(model_id, body_bytes):
-            return await anyio.to_thread.run_sync(work, *args)
+            return await anyio.to_thread.run_sync(work, *args, limiter=self.write_threads)
 
     def refusal(self, model_id: str, body_bytes: int) -> ModelBusy | None:
         """The 429 a write of ``body_bytes`` to ``model_id`` would get now, or None."""
@@ -205,6 +210,7 @@ def admission_of(settings: Settings) -> Admission:
         model_write_queue_bytes=settings.model_write_queue_bytes,
         rate_per_second=settings.rate_limit_per_second,
         rate_burst=settings.rate_limit_burst,
+        write_threads=settings.write_threads,
     )
 
 

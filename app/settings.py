@@ -64,6 +64,11 @@ class Settings(BaseSettings):
     metrics_max_models: int = Field(
         100, ge=1, description="Models with their own `model` label in /metrics; later ones share `_other`."
     )
+    write_threads: int = Field(
+        4,
+        ge=1,
+        description="Threads the admitted model writes share, apart from `worker_threads` (docs/operations.md).",
+    )
     worker_threads: int = Field(16, ge=1, description="Threads running the blocking routes (numba, database).")
     model_write_queue: int = Field(
         32, ge=0, le=10_000, description="Writes a model keeps waiting behind the one in progress; more is a 429."

@@ -118,3 +118,40 @@ def test_outside_write_lock_gives_storage_busy_while_reads_and_readiness_answer(
         log = server.log(tail=200_000)
         assert "reloaded from the database" not in log, "a write refused before memory changed reloaded the model"
         assert "write lock is held elsewhere" in log
+
+
+def test_writes_to_many_models_waiting_on_the_lock_leave_the_reads_their_threads(
+    sqlite_url: str, tmp_path: Path
+) -> None:
+    """More models writing than there are worker threads: their writes wait for SQLite's one
+    write lock on the write threads (``CONTEXTWEB_WRITE_THREADS``), so a read of another model
+    still finds a thread at once. With the writes on the routes' pool, the 8 waiting writes held
+    all 4 of its threads and every read waited behind them for the busy timeout. (A read of a
+    model whose own write is waiting for the lock waits for that write: docs/operations.md.)"""
+    import concurrent.futures
+
+    database = Path(sqlite_url.removeprefix("sqlite:///"))
+    env = {
+        "CONTEXTWEB_SQLITE_BUSY_TIMEOUT_MS": "4000",
+        "CONTEXTWEB_WORKER_THREADS": "4",
+        "CONTEXTWEB_WRITE_THREADS": "2",
+    }
+    with running_server(sqlite_url, tmp_path, env=env) as server:
+        models = [create_model(server.base_url, FAST_HYPERPARAMETERS) for _ in range(8)]
+        quiet_model = create_model(server.base_url, FAST_HYPERPARAMETERS)
+        with server.client(timeout=30) as client, concurrent.futures.ThreadPoolExecutor(len(models)) as pool:
+            with outside_write_lock(database):
+                posts = [
+                    pool.submit(client.post, f"/v1/models/{model_id}/scenes", json=body)
+                    for model_id, body in zip(models, concept_scenes(len(models), seed=3), strict=True)
+                ]
+                time.sleep(1.0)  # every post admitted: the write threads blocked on the lock, the rest waiting
+                reads = [
+                    _timed_get(client, path)
+                    for path in (f"/v1/models/{quiet_model}/contexts", f"/v1/models/{quiet_model}/scenes", "/readyz")
+                ]
+            statuses = sorted(post.result().status_code for post in posts)
+    for response, seconds in reads:
+        assert response.status_code == 200, response.text
+        assert seconds < PROMPT_SECONDS, f"a read took {seconds:.2f} s while writes to 8 models waited on the lock"
+    assert set(statuses) <= {201, 503}, statuses  # each write either waited out the lock or was storage_busy

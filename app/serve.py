@@ -35,7 +35,9 @@ EXIT_DATABASE_UNAVAILABLE = 69
 
 
 def run_migrate(_args: argparse.Namespace) -> int:
-    settings = Settings()
+    # Only the database settings matter to a migration: a one-shot migrating container (compose's
+    # `migrate`, an init container) runs the production image without the keys it never uses.
+    settings = Settings(environment="development")
     engine = create_database_engine(settings.resolved_database_url, sqlite_synchronous=settings.sqlite_synchronous)
     try:
         upgrade_to_head(engine)

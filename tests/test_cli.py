@@ -74,3 +74,16 @@ def test_invalid_settings_are_one_line_each_and_exit_78() -> None:
     assert result.stderr.splitlines() == [
         "contextweb migrate: CONTEXTWEB_PORT: Input should be less than or equal to 65535"
     ], result.stderr
+
+
+def test_migrate_needs_no_keys_in_production(tmp_path) -> None:  # noqa: ANN001
+    import os
+
+    url = f"sqlite:///{tmp_path / 'contextweb.sqlite3'}"
+    environment = {**os.environ, "CONTEXTWEB_ENVIRONMENT": "production", "CONTEXTWEB_DATABASE_URL": url}
+    environment.pop("CONTEXTWEB_WRITE_KEY", None)
+    result = subprocess.run(
+        [sys.executable, "-m", "app.cli", "migrate"], capture_output=True, text=True, env=environment, timeout=120
+    )
+    assert result.returncode == 0, result.stderr
+    assert "is at the latest schema" in result.stdout

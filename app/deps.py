@@ -194,42 +194,52 @@ def model_write(state: AppState, model: ModelRuntime) -> Iterator[ModelWrite]:
 
     Call it on a worker thread admitted by ``Admission.run_write`` (app/admission.py): then no other
     write of this process waits on ``model.lock``, only the reads that need it for a moment.
+
+    The database's lock is taken first and the model's after it, then both are held through the
+    commit: while the write waits for a lock held elsewhere (another process's write, an outside
+    ``sqlite3`` shell), the model's reads go on, from memory that still equals the database.
     """
-    with model.lock:
-        if model.deleted:
-            raise ModelNotFound(model.id)
-        if model.unavailable is not None:
-            state.registry.reload(model)
-        try:
-            with unit_of_work(state.write_sessions) as session:
-                stored = lda_repository.lock_version(session, model.id)
-                if stored is None:
-                    state.registry.forget(model)
-                    raise ModelNotFound(model.id)
-                if stored != model.version:
-                    _catch_up_for_write(state, session, model)
-                write = ModelWrite(session, stored + 1)
-                yield write
-                if not write.unchanged:
-                    if not write.version_saved:
-                        lda_repository.set_version(session, model.id, write.version)
-                    feed_repository.notify_change(session, model.id)
+    if model.deleted:
+        raise ModelNotFound(model.id)
+    holding = False
+    try:
+        with unit_of_work(state.write_sessions) as session:
+            stored = lda_repository.lock_version(session, model.id)  # the database's lock: wait here
+            model.lock.acquire()
+            holding = True
+            if model.deleted:
+                raise ModelNotFound(model.id)
+            if model.unavailable is not None:
+                state.registry.reload(model)
+            if stored is None:
+                state.registry.forget(model)
+                raise ModelNotFound(model.id)
+            if stored != model.version:
+                _catch_up_for_write(state, session, model)
+            write = ModelWrite(session, stored + 1)
+            yield write
             if not write.unchanged:
-                model.version = write.version
-            state.storage.record_success()
-        except BaseException as error:
-            failed = is_storage_failure(error)
-            if failed and state.metrics is not None:
-                state.metrics.storage_failed("busy" if is_storage_busy(error) else "unavailable")
-            if failed and not is_storage_busy(error):  # a lock held elsewhere says nothing of the database's health
-                state.storage.record_failure(storage_failure_reason(error))
-            if model.changing:
-                _restore(state, model, error)
-            if failed:
-                raise storage_error(error) from error
-            raise
-        finally:
-            model.changing = False
+                if not write.version_saved:
+                    lda_repository.set_version(session, model.id, write.version)
+                feed_repository.notify_change(session, model.id)
+        if not write.unchanged:
+            model.version = write.version
+        state.storage.record_success()
+    except BaseException as error:
+        failed = is_storage_failure(error)
+        if failed and state.metrics is not None:
+            state.metrics.storage_failed("busy" if is_storage_busy(error) else "unavailable")
+        if failed and not is_storage_busy(error):  # a lock held elsewhere says nothing of the database's health
+            state.storage.record_failure(storage_failure_reason(error))
+        if model.changing:
+            _restore(state, model, error)  # under the model's lock: memory changed only once it was held
+        if failed:
+            raise storage_error(error) from error
+        raise
+    finally:
+        model.changing = False
+        if holding:
+            model.lock.release()
 
 
 def write_model(state: AppState, model: ModelRuntime, work: Callable[[Session], T]) -> T:

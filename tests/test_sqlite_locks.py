@@ -126,8 +126,9 @@ def test_writes_to_many_models_waiting_on_the_lock_leave_the_reads_their_threads
     """More models writing than there are worker threads: their writes wait for SQLite's one
     write lock on the write threads (``CONTEXTWEB_WRITE_THREADS``), so a read of another model
     still finds a thread at once. With the writes on the routes' pool, the 8 waiting writes held
-    all 4 of its threads and every read waited behind them for the busy timeout. (A read of a
-    model whose own write is waiting for the lock waits for that write: docs/operations.md.)"""
+    all 4 of its threads and every read waited behind them for the busy timeout. A read of a
+    model whose own write is waiting for the lock answers at once too: the write takes the
+    model's memory lock only once it holds the database's."""
     import concurrent.futures
 
     database = Path(sqlite_url.removeprefix("sqlite:///"))
@@ -148,7 +149,12 @@ def test_writes_to_many_models_waiting_on_the_lock_leave_the_reads_their_threads
                 time.sleep(1.0)  # every post admitted: the write threads blocked on the lock, the rest waiting
                 reads = [
                     _timed_get(client, path)
-                    for path in (f"/v1/models/{quiet_model}/contexts", f"/v1/models/{quiet_model}/scenes", "/readyz")
+                    for path in (
+                        f"/v1/models/{quiet_model}/contexts",
+                        f"/v1/models/{quiet_model}/scenes",
+                        "/readyz",
+                        *(f"/v1/models/{model_id}/contexts" for model_id in models),  # writes waiting on the lock
+                    )
                 ]
             statuses = sorted(post.result().status_code for post in posts)
     for response, seconds in reads:

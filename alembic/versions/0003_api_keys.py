@@ -2,7 +2,7 @@
 
 Revision ID: 0003
 Revises: 0002
-Create Date: 2027-01-10
+Create Date: 2026-12-02
 
 Keys are created, listed and revoked by ``/v1/keys`` and ``contextweb keys``
 (app/auth.py); the environment keys stay as bootstrap keys. ``model_ids`` is

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -36,7 +37,7 @@ def test_unknown_experiment_is_refused_with_the_known_names(capsys: pytest.Captu
     assert "invalid choice: 'telepathy'" in capsys.readouterr().err
 
 
-def test_experiment_prints_its_json_summary(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:  # noqa: ANN001
+def test_experiment_prints_its_json_summary(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["experiment", "mixed", "--quick", "--json", "--out", str(tmp_path)]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary == json.loads((tmp_path / "summary.json").read_text())
@@ -54,7 +55,12 @@ def test_an_unreachable_database_is_one_line_and_exit_69_not_a_traceback(command
         environment = {**os.environ, "CONTEXTWEB_DATABASE_URL": f"postgresql://robot:secret@127.0.0.1:{port}/fleet"}
         environment.pop("CONTEXTWEB_WRITE_KEY", None)
         result = subprocess.run(
-            [sys.executable, "-m", "app.cli", command], capture_output=True, text=True, env=environment, timeout=120
+            [sys.executable, "-m", "app.cli", command],
+            capture_output=True,
+            text=True,
+            env=environment,
+            timeout=120,
+            check=False,
         )
     assert result.returncode == 69
     assert "Traceback" not in result.stderr and "secret" not in result.stderr
@@ -68,7 +74,12 @@ def test_invalid_settings_are_one_line_each_and_exit_78() -> None:
     environment = {**os.environ, "CONTEXTWEB_ENVIRONMENT": "production", "CONTEXTWEB_PORT": "99999"}
     environment.pop("CONTEXTWEB_WRITE_KEY", None)
     result = subprocess.run(
-        [sys.executable, "-m", "app.cli", "migrate"], capture_output=True, text=True, env=environment, timeout=120
+        [sys.executable, "-m", "app.cli", "migrate"],
+        capture_output=True,
+        text=True,
+        env=environment,
+        timeout=120,
+        check=False,
     )
     assert result.returncode == 78 and "Traceback" not in result.stderr
     assert result.stderr.splitlines() == [
@@ -76,14 +87,19 @@ def test_invalid_settings_are_one_line_each_and_exit_78() -> None:
     ], result.stderr
 
 
-def test_migrate_needs_no_keys_in_production(tmp_path) -> None:  # noqa: ANN001
+def test_migrate_needs_no_keys_in_production(tmp_path: Path) -> None:
     import os
 
     url = f"sqlite:///{tmp_path / 'contextweb.sqlite3'}"
     environment = {**os.environ, "CONTEXTWEB_ENVIRONMENT": "production", "CONTEXTWEB_DATABASE_URL": url}
     environment.pop("CONTEXTWEB_WRITE_KEY", None)
     result = subprocess.run(
-        [sys.executable, "-m", "app.cli", "migrate"], capture_output=True, text=True, env=environment, timeout=120
+        [sys.executable, "-m", "app.cli", "migrate"],
+        capture_output=True,
+        text=True,
+        env=environment,
+        timeout=120,
+        check=False,
     )
     assert result.returncode == 0, result.stderr
     assert "is at the latest schema" in result.stdout

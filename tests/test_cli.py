@@ -46,14 +46,12 @@ def test_experiment_prints_its_json_summary(tmp_path, capsys: pytest.CaptureFixt
 
 @pytest.mark.parametrize("command", ["migrate", "serve"])
 def test_an_unreachable_database_is_one_line_and_exit_69_not_a_traceback(command: str) -> None:
-    import os
     import socket
 
     with socket.socket() as closed:  # a port that refuses connections: bound, never listened on
         closed.bind(("127.0.0.1", 0))
         port = closed.getsockname()[1]
-        environment = {**os.environ, "CONTEXTWEB_DATABASE_URL": f"postgresql://robot:secret@127.0.0.1:{port}/fleet"}
-        environment.pop("CONTEXTWEB_WRITE_KEY", None)
+        environment = _environment(CONTEXTWEB_DATABASE_URL=f"postgresql://robot:secret@127.0.0.1:{port}/fleet")
         result = subprocess.run(
             [sys.executable, "-m", "app.cli", command],
             capture_output=True,
@@ -69,10 +67,8 @@ def test_an_unreachable_database_is_one_line_and_exit_69_not_a_traceback(command
 
 
 def test_invalid_settings_are_one_line_each_and_exit_78() -> None:
-    import os
 
-    environment = {**os.environ, "CONTEXTWEB_ENVIRONMENT": "production", "CONTEXTWEB_PORT": "99999"}
-    environment.pop("CONTEXTWEB_WRITE_KEY", None)
+    environment = _environment(CONTEXTWEB_ENVIRONMENT="production", CONTEXTWEB_PORT="99999")
     result = subprocess.run(
         [sys.executable, "-m", "app.cli", "migrate"],
         capture_output=True,
@@ -88,11 +84,9 @@ def test_invalid_settings_are_one_line_each_and_exit_78() -> None:
 
 
 def test_migrate_needs_no_keys_in_production(tmp_path: Path) -> None:
-    import os
 
     url = f"sqlite:///{tmp_path / 'contextweb.sqlite3'}"
-    environment = {**os.environ, "CONTEXTWEB_ENVIRONMENT": "production", "CONTEXTWEB_DATABASE_URL": url}
-    environment.pop("CONTEXTWEB_WRITE_KEY", None)
+    environment = _environment(CONTEXTWEB_ENVIRONMENT="production", CONTEXTWEB_DATABASE_URL=url)
     result = subprocess.run(
         [sys.executable, "-m", "app.cli", "migrate"],
         capture_output=True,
@@ -103,3 +97,10 @@ def test_migrate_needs_no_keys_in_production(tmp_path: Path) -> None:
     )
     assert result.returncode == 0, result.stderr
     assert "is at the latest schema" in result.stdout
+
+
+def _environment(**settings: str) -> dict[str, str]:
+    """This process's environment without the developer's CONTEXTWEB_* settings, plus ``settings``."""
+    import os
+
+    return {key: value for key, value in os.environ.items() if not key.startswith("CONTEXTWEB_")} | settings

@@ -35,10 +35,10 @@ def _reference_joint(state: LDAState) -> float:
     )  # fmt: skip
 
 
-def test_gibbs_chain_visits_states_with_the_exact_posterior() -> None:
-    # 2 scenes x 3 tokens, K = 2: the 64 assignments can be enumerated, P(z | w) ∝ exp(log P(w, z)).
-    state = _state([[0, 1, 1], [2, 2, 0]], vocab_size=3, n_contexts=2)
-    states = list(itertools.product(range(2), repeat=state.n_tokens))
+def chain_total_variation(state: LDAState, sweeps: int, kernel: str | None = None) -> float:
+    """Total variation between the exact P(z | w) ∝ exp(log P(w, z)), enumerated over every
+    assignment of ``state``'s tokens, and the visit frequencies of ``sweeps`` Gibbs sweeps."""
+    states = list(itertools.product(range(state.n_contexts), repeat=state.n_tokens))
     log_joint = []
     for z in states:
         state.assignments[:] = z
@@ -51,11 +51,16 @@ def test_gibbs_chain_visits_states_with_the_exact_posterior() -> None:
     state.initialize_randomly(rng)
     index = {z: i for i, z in enumerate(states)}
     visits = np.zeros(len(states))
-    for _ in range(30_000):
-        state.sweep(rng)
+    for _ in range(sweeps):
+        state.sweep(rng, kernel=kernel)
         visits[index[tuple(state.assignments.tolist())]] += 1
-    total_variation = 0.5 * np.abs(visits / visits.sum() - exact).sum()
-    assert total_variation < 0.03
+    return float(0.5 * np.abs(visits / visits.sum() - exact).sum())
+
+
+def test_gibbs_chain_visits_states_with_the_exact_posterior() -> None:
+    # 2 scenes x 3 tokens, K = 2: the 64 assignments can be enumerated.
+    state = _state([[0, 1, 1], [2, 2, 0]], vocab_size=3, n_contexts=2)
+    assert chain_total_variation(state, 30_000) < 0.03
     assert state.invariant_violations() == []
 
 
@@ -164,7 +169,9 @@ def _add_scene_step_by_step(
     previous = state.assignments[rejuvenated].copy()
     scene_tokens = np.arange(earlier, state.n_tokens)
     for sweep in range(sweeps):
-        state.sample_tokens(np.concatenate([scene_tokens, rejuvenated[sweep * per_sweep : (sweep + 1) * per_sweep]]), rng)
+        state.sample_tokens(
+            np.concatenate([scene_tokens, rejuvenated[sweep * per_sweep : (sweep + 1) * per_sweep]]), rng
+        )
     return scene, rejuvenated, previous
 
 

@@ -8,13 +8,12 @@ against the enumerated posterior), while the counts stay those of the assignment
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 import pytest
 
 from core.context.lda import LANES_FROM_CONTEXTS, SPARSE_FROM_CONTEXTS, SWEEP_KERNELS, LDAState, sweep_kernel
 from core.errors import InvalidInputError
+from tests.test_context_sampler import chain_total_variation
 
 KERNELS = sorted(SWEEP_KERNELS)
 NEW_KERNELS = ["lanes", "sparse"]
@@ -90,23 +89,7 @@ def test_chain_visits_states_with_the_exact_posterior(
     """P(z | w) ∝ exp(log P(w, z)) over every assignment, against the chain's visit frequencies
     (the same check as the dense sweep's in tests/test_context_sampler.py)."""
     state = _corpus_state(docs, vocab_size, n_contexts, alpha=0.5, xi=0.5)
-    states = list(itertools.product(range(n_contexts), repeat=state.n_tokens))
-    log_joint = []
-    for z in states:
-        state.assignments[:] = z
-        state.recount()
-        log_joint.append(state.joint_log_likelihood())
-    exact = np.exp(np.array(log_joint) - max(log_joint))
-    exact /= exact.sum()
-
-    rng = np.random.default_rng(1)
-    state.initialize_randomly(rng)
-    index = {z: i for i, z in enumerate(states)}
-    visits = np.zeros(len(states))
-    for _ in range(sweeps):
-        state.sweep(rng, kernel=kernel)
-        visits[index[tuple(state.assignments.tolist())]] += 1
-    assert 0.5 * np.abs(visits / visits.sum() - exact).sum() < tolerance
+    assert chain_total_variation(state, sweeps, kernel) < tolerance
     assert state.invariant_violations() == []
 
 

@@ -22,7 +22,9 @@ $(VENV)/.installed-dev: pyproject.toml | $(BIN)/python
 install: $(VENV)/.installed
 dev: $(VENV)/.installed-dev
 
+# Migrations run only here and in docker/entrypoint.sh: `contextweb serve` refuses an old schema.
 run: $(VENV)/.installed
+	$(BIN)/contextweb migrate
 	$(BIN)/contextweb serve
 
 # Debian's Chromium for the dashboard's browser test; where it cannot be installed the test skips and says why.

@@ -225,8 +225,8 @@ class RefuseBusyWrites:
 
     The route's own admission (:meth:`Admission.run_write`, after the key check) is the one
     that queues; this only spares the event loop the parsing of bodies that would be refused
-    anyway (≈ 50 ms of the loop for an 8 MiB raw scene: under a hammering client, the other
-    models' latency). It answers before the key is checked, so it tells a client without a
+    anyway (the loop's time for an 8 MiB raw scene, docs/benchmarks.md: under a hammering
+    client, the other models' latency). It answers before the key is checked, so it tells a client without a
     valid key no more than that a model id is busy; its body size is the declared
     ``Content-Length`` (0 when chunked, so a chunked write is refused here only by the count).
     """

@@ -15,6 +15,8 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
+from storage.migrations import SchemaNotAtHead
+
 
 def _build_experiment(parser: argparse.ArgumentParser) -> None:
     from core.experiments import EXPERIMENTS
@@ -59,7 +61,7 @@ def _build_migrate(parser: argparse.ArgumentParser) -> None:
 def _build_bridge(parser: argparse.ArgumentParser) -> None:
     tools = parser.add_subparsers(dest="tool", required=True, metavar="TOOL")
     for name in ("simulate", "replay"):
-        module = importlib.import_module(f"bridge.{name}")
+        module = importlib.import_module(f"bridge.tools.{name}")
         tool = tools.add_parser(name, help=(module.__doc__ or name).strip().splitlines()[0])
         module.add_arguments(tool)
         tool.set_defaults(handler=module.run)
@@ -109,10 +111,13 @@ def _show_prototypes(args: argparse.Namespace) -> int:
 
 #: sysexits' EX_CONFIG: the CONTEXTWEB_* settings are invalid.
 EXIT_BAD_SETTINGS = 78
+#: sysexits' EX_TEMPFAIL: the database is not at the head revision; ``contextweb migrate``, then
+#: the same command again, succeeds (a server started before its deployment's migration finished).
+EXIT_SCHEMA_NOT_AT_HEAD = 75
 
 #: Command -> (help, builder of its parser). A builder imports what its command needs.
 COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
-    "serve": ("run the web service (migrates the database first)", _build_serve),
+    "serve": ("run the web service (after `contextweb migrate`)", _build_serve),
     "migrate": ("bring the database to the latest schema", _build_migrate),
     "experiment": ("run one of the paper's experiments", _build_experiment),
     "report": ("run every experiment and write the reproduction report", _build_report),
@@ -148,6 +153,9 @@ def main(argv: list[str] | None = None) -> int:
             where = f"CONTEXTWEB_{field.upper()}: " if field else ""
             print(f"contextweb {args.command}: {where}{problem['msg']}", file=sys.stderr)
         return EXIT_BAD_SETTINGS
+    except SchemaNotAtHead as error:  # one line, as for the settings: the fix is one command
+        print(f"contextweb {args.command}: {error}", file=sys.stderr)
+        return EXIT_SCHEMA_NOT_AT_HEAD
 
 
 if __name__ == "__main__":

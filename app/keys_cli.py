@@ -1,8 +1,8 @@
 """``contextweb keys create|list|revoke``: the stored API keys, on the database of ``CONTEXTWEB_DATABASE_URL``.
 
 For the first keys of a deployment, and for an operator without an admin key at hand. The
-database is migrated first (idempotent, as ``contextweb migrate``), so keys can be made before
-the server ever started. ``create`` prints the key on stdout, alone on its line, and nothing
+database must be migrated (``contextweb migrate``, which may run before the server ever started;
+otherwise the command refuses, exit 75). ``create`` prints the key on stdout, alone on its line, and nothing
 else there (its description goes to stderr), so ``KEY=$(contextweb keys create …)`` works;
 the key is not stored and cannot be shown again. ``revoke`` exits 2 for an unknown id. A
 server reads keys per request, so a revocation holds on its next request.
@@ -23,7 +23,7 @@ from app.schemas.keys import ApiKeyCreate, ApiKeyRead
 from app.services import keys as key_service
 from app.settings import Settings
 from storage.database import create_database_engine, create_session_makers
-from storage.migrations import upgrade_to_head
+from storage.migrations import require_schema_at_head
 from storage.unit_of_work import unit_of_work
 
 DONE = 0
@@ -51,7 +51,7 @@ def _write_sessions() -> Iterator[sessionmaker[Session]]:
     settings = Settings()
     engine = create_database_engine(settings.resolved_database_url, sqlite_synchronous=settings.sqlite_synchronous)
     try:
-        upgrade_to_head(engine)
+        require_schema_at_head(engine)
         yield create_session_makers(engine)[1]
     finally:
         engine.dispose()

@@ -1,12 +1,13 @@
 """The app factory: ``create_app(settings)`` builds the FastAPI app; its lifespan owns the state.
 
-On start the lifespan creates the engine and the session makers, migrates the
-database to the latest schema, reloads every model into memory, warms up the
-numba kernels of a scene request and freezes start-up's objects out of the
-garbage collector (app/services/warmup.py), binds the websocket hub to the event
+On start the lifespan creates the engine and the session makers, checks that the
+database is at the latest schema (``contextweb migrate`` brings it there; the app never
+migrates), reloads every model into memory, binds the websocket hub to the event
 loop and starts the scene feed (app/feed.py) and the check that closes revoked keys' streams
-(app/auth.py); on stop it stops them, closes
-the dashboards' sockets and disposes of the engine.
+(app/auth.py); on stop it stops them, closes the dashboards' sockets and disposes of the engine.
+
+The process-wide preparation of a server (the numba warm-up and ``gc.freeze()``) is not the
+factory's: ``contextweb serve`` does it before it builds the app (app/serve.py, ``serving_app``).
 """
 
 from __future__ import annotations
@@ -29,16 +30,15 @@ from app.auth import close_revoked_streams
 from app.errors import InvalidInput, ModelUnavailable, StorageUnavailable, add_exception_handlers, error_responses
 from app.feed import SceneFeed
 from app.metrics import ModelMetrics
-from app.middleware import RequestBodyLimits, memoise_route_metrics
+from app.middleware import RequestBodyLimits
 from app.registry import ModelRegistry
 from app.routers import contexts, health, keys, models, plans, scenes, stream, training
 from app.services.limits import VocabularyLimits
-from app.services.warmup import freeze_start_up_objects, warm_up_kernels
 from app.settings import Settings
 from app.state import AppState
 from app.stream import StreamHub
 from storage.database import create_database_engine, create_session_makers
-from storage.migrations import upgrade_to_head
+from storage.migrations import require_schema_at_head
 
 logger = logging.getLogger("contextweb")
 
@@ -103,7 +103,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     Instrumentator(registry=metrics_registry, excluded_handlers=["/metrics"]).instrument(app).expose(
         app, endpoint="/metrics", tags=["health"], summary="Prometheus metrics"
     )
-    memoise_route_metrics(app)
     # Last: the dashboard at / must not shadow any API route.
     app.mount("/", StaticFiles(directory=DASHBOARD_DIRECTORY, html=True), name="dashboard")
     return app
@@ -117,7 +116,11 @@ def _start(settings: Settings) -> AppState:
         pool_size=settings.database_pool_size,
         sqlite_busy_timeout_ms=settings.sqlite_busy_timeout_ms,
     )
-    upgrade_to_head(engine)
+    try:
+        require_schema_at_head(engine)
+    except BaseException:
+        engine.dispose()
+        raise
     read_sessions, write_sessions = create_session_makers(engine)
     hub = StreamHub(settings.stream_queue_size)
     state = AppState(
@@ -132,7 +135,5 @@ def _start(settings: Settings) -> AppState:
     with read_sessions() as session:
         state.registry.load_all(session)
     logger.info("%d model(s) loaded from %s", len(state.registry), engine.url.render_as_string())
-    warm_up_kernels()  # before /readyz says ready: a first request must not wait for numba to compile
-    freeze_start_up_objects()  # and must not stall on a full collection of start-up's objects
     state.models_loaded = True
     return state

@@ -1,4 +1,4 @@
-"""ASGI middleware: the request body's limits, and the Prometheus middleware with its route names memoised.
+"""ASGI middleware: the request body's limits.
 
 :class:`RequestBodyLimits` reads every HTTP request body before the routes see it
 and answers in the documented error shape (``field: "body"``) when it is
@@ -18,22 +18,16 @@ unacceptable, so that no such body reaches the JSON parser:
 
 413 and 408 close the connection (``Connection: close``): the rest of the body is
 not worth reading. Reading the whole body here costs nothing extra, as the routes
-read it whole anyway; the JSON checks cost 5–15 µs on a typical scene (docs/api.md, "Limits").
+read it whole anyway; the JSON checks' cost on a typical scene is in docs/benchmarks.md (docs/api.md, "Limits").
 """
 
 from __future__ import annotations
 
 import email.message
 import json
-import threading
-from collections import OrderedDict
 from itertools import accumulate
 
 import anyio
-from fastapi import FastAPI
-from prometheus_fastapi_instrumentator.middleware import PrometheusInstrumentatorMiddleware
-from starlette.middleware import Middleware
-from starlette.requests import Request
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from app.errors import ContextwebError, InvalidInput, PayloadTooLarge, RequestTimeout, error_response
@@ -181,46 +175,3 @@ async def _refuse(error: ContextwebError, scope: Scope, receive: Receive, send: 
     headers = {"Connection": "close"} if close else None
     response = error_response(error.error, error.message, error.status_code, error.field, headers=headers)
     await response(scope, receive, send)
-
-
-class MemoisedRouteMetrics(PrometheusInstrumentatorMiddleware):
-    """The instrumentator's middleware, resolving each request path to its route template once.
-
-    The stock middleware matches the path against every route of the app on every
-    request (≈ 0.3 ms a scene post); the routes never change once the app is
-    built, so (method, root path, path) → template is memoised, for the
-    ``ROUTE_NAMES_CACHED`` most recent paths (a robot posts to one path).
-    """
-
-    ROUTE_NAMES_CACHED = 1024
-
-    def __init__(self, *args: object, **kwargs: object) -> None:
-        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
-        self._route_names: OrderedDict[tuple[str, str, str], tuple[str, bool]] = OrderedDict()
-        self._route_names_lock = threading.Lock()
-
-    def _get_handler(self, request: Request) -> tuple[str, bool]:
-        scope = request.scope
-        key = (scope["method"], scope.get("root_path", ""), scope["path"])
-        with self._route_names_lock:
-            found = self._route_names.get(key)
-            if found is not None:
-                self._route_names.move_to_end(key)
-                return found
-        found = super()._get_handler(request)
-        with self._route_names_lock:
-            self._route_names[key] = found
-            while len(self._route_names) > self.ROUTE_NAMES_CACHED:
-                self._route_names.popitem(last=False)
-        return found
-
-
-def memoise_route_metrics(app: FastAPI) -> None:
-    """Swap the middleware ``Instrumentator.instrument`` added for :class:`MemoisedRouteMetrics`
-    (same arguments); call it after ``instrument`` and before the app starts."""
-    app.user_middleware = [
-        Middleware(MemoisedRouteMetrics, *entry.args, **entry.kwargs)
-        if entry.cls is PrometheusInstrumentatorMiddleware
-        else entry
-        for entry in app.user_middleware
-    ]

@@ -1,4 +1,9 @@
-"""``contextweb serve`` and ``contextweb migrate``: run the service, or only bring its database up to date."""
+"""``contextweb serve`` and ``contextweb migrate``: run the service, or bring its database up to date.
+
+The two are separate steps: ``migrate`` is the only command that changes the schema (the
+container's entry point and ``make run`` call it before ``serve``), and ``serve`` refuses a
+database that is not at the head revision (exit 75, app/cli.py) instead of migrating it.
+"""
 
 from __future__ import annotations
 
@@ -6,14 +11,17 @@ import argparse
 import logging
 import os
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sqlalchemy.exc import OperationalError
 
 from app.logs import log_config
 from app.settings import LOOPBACK_HOSTS, Settings
 from storage.database import create_database_engine
-from storage.migrations import upgrade_to_head
+from storage.migrations import require_schema_at_head, upgrade_to_head
+
+if TYPE_CHECKING:
+    from fastapi import FastAPI
 
 logger = logging.getLogger("contextweb")
 
@@ -57,13 +65,13 @@ def _database_unavailable(command: str, url: str, error: OperationalError) -> in
     return EXIT_DATABASE_UNAVAILABLE
 
 
-def _prepare_database(settings: Settings) -> int | None:
-    """Migrate once, before any worker starts (exit status if the database cannot be reached, else
-    None): with ``--workers N`` each worker's start-up would otherwise race the others to create
-    the schema of an empty SQLite database (PostgreSQL's migrations take an advisory lock)."""
+def _check_database(settings: Settings) -> int | None:
+    """Before any worker starts: the exit status if the database cannot be reached, else None;
+    :class:`~storage.migrations.SchemaNotAtHead` (one line and exit 75, app/cli.py) if it is not
+    migrated. ``serve`` never migrates: ``contextweb migrate`` does, once, before it."""
     engine = create_database_engine(settings.resolved_database_url, sqlite_synchronous=settings.sqlite_synchronous)
     try:
-        upgrade_to_head(engine)
+        require_schema_at_head(engine)
         return None
     except OperationalError as error:
         return _database_unavailable("serve", engine.url.render_as_string(), error)
@@ -71,11 +79,26 @@ def _prepare_database(settings: Settings) -> int | None:
         engine.dispose()
 
 
-def run_serve(args: argparse.Namespace) -> int:
-    """Migrate, then serve on uvicorn; without API keys, only on loopback (and say so)."""
-    import uvicorn
+def serving_app(settings: Settings | None = None) -> FastAPI:
+    """The app a serving process runs: this process's numba kernels warmed up and its start-up
+    objects frozen out of the garbage collector (app/services/warmup.py), then
+    :func:`app.main.create_app`. uvicorn calls it in every worker process (``--workers N``), so
+    each worker is warm before it accepts a connection; ``create_app`` itself stays a plain factory.
 
+    The freeze comes before the app's lifespan loads the stored models: they are made after it,
+    like the models a serving process creates later, and their cyclic garbage stays collectable.
+    """
     from app.main import create_app
+    from app.services.warmup import freeze_start_up_objects, warm_up_kernels
+
+    warm_up_kernels()  # before /readyz says ready: a first request must not wait for numba to compile
+    freeze_start_up_objects()  # and must not stall on a full collection of start-up's objects
+    return create_app(settings)
+
+
+def run_serve(args: argparse.Namespace) -> int:
+    """Check the database, then serve on uvicorn; without API keys, only on loopback (and say so)."""
+    import uvicorn
 
     overrides: dict[str, Any] = {name: value for name in ("host", "port") if (value := getattr(args, name)) is not None}
     settings = Settings(**overrides)
@@ -90,14 +113,14 @@ def run_serve(args: argparse.Namespace) -> int:
         )
     if args.workers < 1:
         raise SystemExit("contextweb serve: --workers must be at least 1")
-    if (status := _prepare_database(settings)) is not None:
+    if (status := _check_database(settings)) is not None:
         return status
     if args.workers == 1:
-        target: Any = create_app(settings)
+        target: Any = serving_app(settings)
     else:
         # Each worker builds its own app from the environment (uvicorn imports the factory by name).
         os.environ.update({f"CONTEXTWEB_{name.upper()}": str(value) for name, value in overrides.items()})
-        target = "app.main:create_app"
+        target = "app.serve:serving_app"
     uvicorn.run(
         target,
         factory=args.workers > 1,

@@ -3,6 +3,8 @@
 With names (e.g. ``features``), only the ``bench_<name>`` modules run. Options
 (arguments starting with ``-``, e.g. ``--quick``) are passed on to every benchmark,
 which sees them in ``sys.argv`` as if it had been run with ``python -m bench.bench_<name>``.
+Afterwards ``docs/benchmarks.md`` is rewritten from every ``bench/results/*.json`` (bench/docs.py);
+``--docs-only`` rewrites it without running anything.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import pkgutil
 import sys
 
 import bench
+from bench.docs import write_benchmarks_doc
 
 
 def bench_modules(names: list[str]) -> list[str]:
@@ -26,11 +29,13 @@ def bench_modules(names: list[str]) -> list[str]:
 
 def main(argv: list[str]) -> int:
     names = [arg for arg in argv if not arg.startswith("-")]
-    options = [arg for arg in argv if arg.startswith("-")]
-    for module_path in bench_modules(names):
-        print(f"== {module_path}", flush=True)
-        sys.argv = [module_path, *options]
-        importlib.import_module(module_path).main()
+    options = [arg for arg in argv if arg.startswith("-") and arg != "--docs-only"]
+    if "--docs-only" not in argv:
+        for module_path in bench_modules(names):
+            print(f"== {module_path}", flush=True)
+            sys.argv = [module_path, *options]
+            importlib.import_module(module_path).main()
+    print(f"== {write_benchmarks_doc()} rewritten from {bench.RESULTS}/*.json", flush=True)
     return 0
 
 

@@ -72,7 +72,7 @@ GOALS = {"ratio": 1.6, "scenes_per_second": 500.0}
 PREVIOUS_LATENCY_MS = {"sqlite": (2.1, 7.5), "postgresql": (4.1, 8.5)}
 """p50 / p99 of the lean concepts series in the previous session (docs/operations.md)."""
 PREVIOUS_PIPELINE_RATIO = {"sqlite": 5.6, "postgresql": 11.0}
-"""The same p50 over the in-process pipeline then (0.37 ms)."""
+"""The same p50 over the in-process pipeline then (its value: docs/benchmarks.md)."""
 BASELINE_GETS = 50
 
 
@@ -93,6 +93,9 @@ class ScalingServer(Server):
             "CONTEXTWEB_PORT": str(self.port),
             "CONTEXTWEB_SQLITE_SYNCHRONOUS": "FULL",
         }
+        # As `make run` and the container do: `contextweb migrate`, then `contextweb serve`.
+        migrate = [sys.executable, "-m", "app.cli", "migrate"]
+        subprocess.run(migrate, cwd=PROJECT, env=env, stdout=log.open("ab"), stderr=subprocess.STDOUT, check=True)
         # "info" adds only start-up and shutdown lines (no access log): they tell when each worker is up.
         command = [sys.executable, "-m", "app.cli", "serve", "--log-level", "info", "--workers", str(workers)]
         self._log_start = log.stat().st_size if log.exists() else 0
@@ -133,7 +136,7 @@ class ScalingServer(Server):
 
 
 def _start(specs: list[tuple[str, Path, int]]) -> list[ScalingServer]:
-    """Several servers started concurrently (each start-up takes ≈ 10–25 s on this machine)."""
+    """Several servers started concurrently (a start-up mostly waits: docs/benchmarks.md has how long)."""
     with ThreadPoolExecutor(len(specs)) as pool:
         futures = [pool.submit(ScalingServer, url, log, workers) for url, log, workers in specs]
         servers, failure = [], None

@@ -23,7 +23,7 @@ simulated recordings, clouds decimated to 1,000 points to keep the set-up short)
 
 The timed model uses ``birth_check_interval = 200``: under the former default K
 rule (``likelihood``) a growth check re-sampled the last ``birth_window`` scenes
-hundreds of times (≈ 0.1–0.25 s here; the ``scenes`` rule's check costs ≈ 4 ms), and the core
+hundreds of times (far slower than the ``scenes`` rule's check: docs/benchmarks.md), and the core
 checks after each of the first ``birth_check_interval`` scenes (the warm-up), then
 every ``birth_check_interval``: every 25 (the default) puts 4 % of the requests
 there, every 200 keeps them at 0.5 %, under the p99.
@@ -206,6 +206,9 @@ class Server:
             "CONTEXTWEB_PORT": str(self.port),
             "CONTEXTWEB_SQLITE_SYNCHRONOUS": "FULL",
         }
+        # As `make run` and the container do: `contextweb migrate`, then `contextweb serve`.
+        migrate = [sys.executable, "-m", "app.cli", "migrate"]
+        subprocess.run(migrate, cwd=PROJECT, env=env, stdout=log.open("ab"), stderr=subprocess.STDOUT, check=True)
         command = [sys.executable, "-m", "app.cli", "serve", "--log-level", "warning"]
         self.process = subprocess.Popen(command, cwd=PROJECT, env=env, stdout=log.open("ab"), stderr=subprocess.STDOUT)
         deadline = time.monotonic() + 120

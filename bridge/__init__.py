@@ -1,9 +1,10 @@
 """The robot-side client of the Contextweb service (docs/bridge.md).
 
-Importable with httpx, pydantic and the standard library only (``websockets``
-is imported when a stream is opened): a robot does not install the service.
-``bridge.simulate`` and ``bridge.replay`` are development tools that do import
-``core``; nothing here imports them.
+Its own distribution (bridge/pyproject.toml): ``pip install ./bridge`` installs it with httpx
+and pydantic only (``websockets`` with the ``stream`` extra, imported when a stream is
+opened), so a robot does not install the service, numba, numpy or SQLAlchemy.
+``bridge.tools`` (the simulator and the replay of recordings) imports ``core`` and ships with
+the server's distribution instead; nothing here imports it.
 """
 
 from bridge.client import Client, QueuedScene

@@ -1,5 +1,7 @@
 #!/bin/sh
-# The container's entry point: bring the database to the latest schema, then serve.
+# The container's entry point: bring the database to the latest schema, then serve. This and
+# `make run` are where migrations run: `contextweb serve` never migrates, and exits 75 on a
+# database that is not at the head revision (docs/operations.md).
 # Settings come from CONTEXTWEB_* variables (docs/operations.md); extra arguments go to
 # `contextweb serve`. tests/test_docker_entrypoint.py runs this same script outside docker.
 #

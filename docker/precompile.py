@@ -2,7 +2,7 @@
 
 The Dockerfile runs this in its final stage, as the service's user and on the installed
 sources, so a new container loads compiled kernels from the image instead of compiling them
-on its first start (about 35 s on a 2-core VM). It drives the real app in-process, on a
+on its first start (how long that takes: docs/benchmarks.md). It drives the real app in-process, on a
 throwaway SQLite database, through every route that runs numba: both prototype fits (k-means
 and RGNG), scenes at the concepts, features and raw levels (learned and inferred, enough of
 them for the growth checks to run), the three planners and the contexts. Numba compiles a
@@ -25,10 +25,12 @@ import httpx
 import numpy as np
 from fastapi.testclient import TestClient
 
-from app.main import create_app
+from app.serve import serving_app
 from app.settings import Settings
-from bridge.simulate import scene_objects, training_object
+from bridge.tools.simulate import scene_objects, training_object
 from core.world import World
+from storage.database import create_database_engine
+from storage.migrations import upgrade_to_head
 
 #: Scenes per level: enough for the growth checks to run.
 SCENES_PER_LEVEL = 4
@@ -46,7 +48,10 @@ def precompile() -> float:
             write_key=None,
             environment="development",
         )
-        with TestClient(create_app(settings)) as client:
+        engine = create_database_engine(settings.resolved_database_url)
+        upgrade_to_head(engine)  # as `contextweb migrate`
+        engine.dispose()
+        with TestClient(serving_app(settings)) as client:  # the warm-up's kernels too, as `contextweb serve`
             for level, method in (("features", "rgng"), ("raw", "kmeans")):
                 model = _checked(client.post("/v1/models", json={"name": f"precompile-{method}"}))["id"]
                 objects = [

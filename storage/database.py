@@ -120,7 +120,7 @@ def _install_sqlite_pragmas(engine: Engine, synchronous: str, database: str | No
 
     @event.listens_for(engine, "begin")
     def _on_begin(connection: Any) -> None:
-        # Straight to the driver: through exec_driver_sql this statement cost ≈ 0.2 ms a scene.
+        # Straight to the driver: exec_driver_sql's cost a scene is in docs/benchmarks.md.
         options = connection.get_execution_options()
         driver, info = connection.connection.driver_connection, connection.connection.info
         lock_wait = options.get(_LOCK_WAIT_OPTION, busy_timeout_ms)

@@ -1,12 +1,17 @@
-"""Bring a database to the latest schema with Alembic (``alembic upgrade head``).
+"""Bring a database to the latest schema with Alembic (``alembic upgrade head``), or check it is there.
 
-The server runs this on start, ``contextweb migrate`` runs it on demand, and the
-tests build their databases with it: the migrations are the only schema source.
+``contextweb migrate`` (which the container's entry point and ``make run`` call) and the
+tests' database fixtures run :func:`upgrade_to_head`: the migrations are the only schema
+source, and they run in one place. ``contextweb serve``, the app's lifespan and
+``contextweb keys`` only check the schema (:func:`require_schema_at_head`) and refuse to
+work on a database that is not at the head revision.
 """
 
 from __future__ import annotations
 
 from alembic.config import Config
+from alembic.runtime.migration import MigrationContext
+from alembic.script import ScriptDirectory
 from sqlalchemy import Engine, text
 
 from alembic import command
@@ -39,3 +44,28 @@ def upgrade_to_head(engine: Engine) -> None:
             connection.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": MIGRATION_LOCK_KEY})
         config.attributes["connection"] = connection
         command.upgrade(config, "head")
+
+
+class SchemaNotAtHead(RuntimeError):
+    """The database's schema is not at the migrations' head revision: ``contextweb migrate`` has not run."""
+
+    def __init__(self, current: str | None, head: str) -> None:
+        self.current = current
+        self.head = head
+        at = f"at revision {current}" if current else "empty (no revision)"
+        super().__init__(f"the database schema is {at}, not at the head revision {head}: run `contextweb migrate`")
+
+
+def schema_revisions(engine: Engine) -> tuple[str | None, str]:
+    """(the revision ``engine``'s database is at, or None for an empty one; the migrations' head)."""
+    head = ScriptDirectory.from_config(alembic_config()).get_current_head()
+    assert head is not None, "alembic/versions holds the migrations"
+    with engine.connect() as connection:
+        return MigrationContext.configure(connection).get_current_revision(), head
+
+
+def require_schema_at_head(engine: Engine) -> None:
+    """Raise :class:`SchemaNotAtHead` unless ``engine``'s database is at the head revision."""
+    current, head = schema_revisions(engine)
+    if current != head:
+        raise SchemaNotAtHead(current, head)

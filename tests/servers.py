@@ -1,6 +1,7 @@
 """Real ``contextweb serve`` processes for the end-to-end tests (crash, faults, several processes).
 
-:func:`start_server` runs ``python -m app.cli serve`` on a free loopback port
+:func:`start_server` migrates the database as ``contextweb migrate`` does (the
+server only checks it), runs ``python -m app.cli serve`` on a free loopback port
 with the given database URL (and extra arguments such as ``--workers 2``),
 waits until ``/readyz`` answers 200, and returns a :class:`ServerProcess`
 handle: base URL, pid, log file, ``stop()`` (SIGTERM, then SIGKILL after a
@@ -30,9 +31,12 @@ from pathlib import Path
 import httpx
 import pytest
 
+from storage.database import create_database_engine
+from storage.migrations import upgrade_to_head
+
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 
-#: Deadline of a start (migrations, loading every model, the numba warm-up from the disk cache).
+#: Deadline of a start (loading every model, the numba warm-up from the disk cache).
 STARTUP_SECONDS = 90.0
 #: Grace period of a SIGTERM before the SIGKILL.
 STOP_SECONDS = 15.0
@@ -141,6 +145,16 @@ def server_environment(database_url: str, port: int, extra: Mapping[str, str] | 
     return env
 
 
+def migrate(database_url: str) -> None:
+    """Bring the database to the latest schema with the function ``contextweb migrate`` runs,
+    as ``make run`` and the container's entry point do before ``contextweb serve``."""
+    engine = create_database_engine(database_url)
+    try:
+        upgrade_to_head(engine)
+    finally:
+        engine.dispose()
+
+
 def start_server(
     database_url: str,
     log_dir: Path,
@@ -152,13 +166,14 @@ def start_server(
     ready_seconds: float = STARTUP_SECONDS,
     name: str = "server",
 ) -> ServerProcess:
-    """Start ``python -m app.cli serve [args]`` on ``port`` (a free one by default) and wait for ``/readyz``.
+    """Migrate, start ``python -m app.cli serve [args]`` on ``port`` (a free one by default) and wait for ``/readyz``.
 
     ``env`` adds or overrides variables (``CONTEXTWEB_HOST``…). The log goes to
     ``log_dir/<name>-<port>.log`` (appended: a restart on the same port adds to it).
     Raises :class:`ServerStartError` (with the log's tail) when the server exits or is
     not ready in time; the process is then stopped.
     """
+    migrate(database_url)
     port = port or free_port()
     log_path = log_dir / f"{name}-{port}.log"
     command = [sys.executable, "-m", "app.cli", "serve", "--log-level", log_level, *args]

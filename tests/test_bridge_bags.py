@@ -21,8 +21,9 @@ from rosbags.typesys import Stores, get_typestore
 
 from app.cli import main
 from app.main import create_app
-from bridge import Client, RetryPolicy, replay
-from bridge.bags import (
+from bridge import Client, RetryPolicy
+from bridge.tools import replay
+from bridge.tools.bags import (
     BagReplay,
     audio_samples,
     audio_typestore,
@@ -31,8 +32,8 @@ from bridge.bags import (
     post_scenes,
     replay_bag,
 )
-from bridge.mapping import AudioStream, Haptics, Proprioception, parse_mapping
-from bridge.segments import plan_from_markers, plan_from_windows
+from bridge.tools.mapping import AudioStream, Haptics, Proprioception, parse_mapping
+from bridge.tools.segments import plan_from_markers, plan_from_windows
 from core.errors import InvalidInputError
 from core.payloads import Interaction, ObjectRecording, PointCloud
 from core.world import World, WorldConfig
@@ -454,11 +455,11 @@ def test_mapping_errors_name_the_key(tmp_path: Path) -> None:
 
 def test_the_service_never_imports_rosbags_and_a_missing_install_says_what_to_do(tmp_path: Path) -> None:
     code = (
-        "import sys\nimport app.main, bridge, bridge.replay, bridge.bags\n"
+        "import sys\nimport app.main, bridge, bridge.tools.replay, bridge.tools.bags\n"
         "assert 'rosbags' not in sys.modules, 'rosbags imported'\n"
         "sys.modules['rosbags'] = None\n"
         "from pathlib import Path\n"
-        "try:\n    bridge.bags.BagReplay(Path(sys.argv[1]), None)\n"
+        "try:\n    bridge.tools.bags.BagReplay(Path(sys.argv[1]), None)\n"
         "except ImportError as error:\n    print(error)\n"
     )
     bag = tmp_path / "run.bag"

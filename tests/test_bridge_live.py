@@ -22,6 +22,7 @@ import pytest
 
 from bridge import Client, QueuedScene, RetryPolicy, SceneObject
 from bridge.models import HelloEvent, SceneEvent, SceneRead
+from tests.servers import migrate
 
 PROJECT = Path(__file__).resolve().parents[1]
 WRITE_KEY = "robot-write-key"
@@ -36,12 +37,15 @@ def free_port() -> int:
 
 
 class ServiceProcess:
-    """One service process on ``127.0.0.1:port``; ``command`` defaults to ``contextweb serve``."""
+    """One service process on ``127.0.0.1:port``; ``command`` defaults to ``contextweb serve``, on a
+    database migrated first (as ``make run`` does); another command (the container's entry point)
+    migrates for itself."""
 
     def __init__(self, tmp_path: Path, command: Sequence[str] | None = None, port: int | None = None) -> None:
         self.port = port or free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.command = list(command or [sys.executable, "-m", "app.cli", "serve"])
+        self.migrate_first = command is None
         self.log_path = tmp_path / f"service-{self.port}.log"
         self.env = os.environ | {
             "CONTEXTWEB_DATABASE_URL": f"sqlite:///{tmp_path / 'contextweb.sqlite3'}",
@@ -55,6 +59,8 @@ class ServiceProcess:
         self.process: subprocess.Popen[bytes] | None = None
 
     def start(self) -> ServiceProcess:
+        if self.migrate_first:
+            migrate(self.env["CONTEXTWEB_DATABASE_URL"])
         with self.log_path.open("ab") as log:
             self.process = subprocess.Popen(
                 self.command, cwd=PROJECT, env=self.env, stdout=log, stderr=subprocess.STDOUT

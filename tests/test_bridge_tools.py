@@ -15,7 +15,8 @@ from app.schemas.models import ModelCreate as ServiceModelCreate
 from app.schemas.plans import PlanCreate as ServicePlanCreate
 from app.schemas.scenes import SceneCreate as ServiceSceneCreate
 from app.schemas.training import TrainingBatchCreate as ServiceTrainingBatch
-from bridge import Client, RetryPolicy, replay, simulate
+from bridge import Client, RetryPolicy
+from bridge.tools import replay, simulate
 from bridge.models import ModelCreate, PlanCreate, SceneCreate, TrainingBatch, TrainingObject, Vocabulary
 from core.errors import InvalidInputError
 from core.world import World, WorldConfig

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from bridge import replay
-from bridge.mapping import parse_mapping
-from bridge.segments import finger_series
-from bridge.yarp import YarpSession, is_yarp_session, read_port_log, replay_yarp
+from bridge.tools import replay
+from bridge.tools.mapping import parse_mapping
+from bridge.tools.segments import finger_series
+from bridge.tools.yarp import YarpSession, is_yarp_session, read_port_log, replay_yarp
 from core.errors import InvalidInputError
 from core.payloads import ObjectRecording
 from core.world import World

@@ -99,6 +99,74 @@ def test_migrate_needs_no_keys_in_production(tmp_path: Path) -> None:
     assert "is at the latest schema" in result.stdout
 
 
+def _previous_revision() -> str:
+    from alembic.script import ScriptDirectory
+
+    from storage.migrations import alembic_config
+
+    script = ScriptDirectory.from_config(alembic_config())
+    previous = script.get_revision(script.get_current_head()).down_revision
+    assert isinstance(previous, str), "the head has one parent"
+    return previous
+
+
+@pytest.mark.parametrize(
+    ("command", "revision"), [("serve", None), ("serve", "previous"), ("keys", None)], ids=["empty", "behind", "keys"]
+)
+def test_a_database_not_at_head_is_refused_with_one_line_and_exit_75(
+    tmp_path: Path, command: str, revision: str | None
+) -> None:
+    """``serve`` (and ``keys``) never migrate: they name the two revisions and say what to run."""
+    from sqlalchemy import inspect
+
+    from alembic import command as alembic_command
+    from storage.database import create_database_engine
+    from storage.migrations import alembic_config, schema_revisions
+
+    url = f"sqlite:///{tmp_path / 'contextweb.sqlite3'}"
+    engine = create_database_engine(url)
+    if revision is not None:
+        config = alembic_config()
+        with engine.begin() as connection:
+            config.attributes["connection"] = connection
+            alembic_command.upgrade(config, _previous_revision())
+    before, head = schema_revisions(engine)
+    tables_before = set(inspect(engine).get_table_names())
+    argv = ["serve"] if command == "serve" else ["keys", "list"]
+    result = subprocess.run(
+        [sys.executable, "-m", "app.cli", *argv],
+        capture_output=True,
+        text=True,
+        env=_environment(CONTEXTWEB_DATABASE_URL=url),
+        timeout=120,
+        check=False,
+    )
+    assert result.returncode == 75, result.stderr
+    assert "Traceback" not in result.stderr and "warmed up" not in result.stderr, "refused before the warm-up"
+    errors = [line for line in result.stderr.splitlines() if line.startswith(f"contextweb {command}:")]
+    assert len(errors) == 1, result.stderr
+    at = f"at revision {before}" if before else "empty (no revision)"
+    assert f"{at}, not at the head revision {head}: run `contextweb migrate`" in errors[0]
+    engine.dispose()
+    engine = create_database_engine(url)
+    assert schema_revisions(engine) == (before, head) and set(inspect(engine).get_table_names()) == tables_before
+    engine.dispose()
+
+
+def test_the_app_factory_refuses_a_database_not_at_head(tmp_path: Path) -> None:
+    from fastapi.testclient import TestClient
+
+    from app.main import create_app
+    from storage.migrations import SchemaNotAtHead
+    from tests.conftest import make_settings
+
+    with (
+        pytest.raises(SchemaNotAtHead, match="contextweb migrate"),
+        TestClient(create_app(make_settings(f"sqlite:///{tmp_path / 'contextweb.sqlite3'}"))),
+    ):
+        pass
+
+
 def _environment(**settings: str) -> dict[str, str]:
     """This process's environment without the developer's CONTEXTWEB_* settings, plus ``settings``."""
     import os

@@ -13,7 +13,8 @@ import pytest
 PROJECT = Path(__file__).resolve().parents[1]
 
 # Run in a fresh interpreter: in the test process, earlier tests have compiled the kernels already.
-# Through the app's real start-up (TestClient runs the lifespan), then a model is trained and
+# Through a serving process's real start-up (``serving_app``, as ``contextweb serve`` builds it, on
+# a migrated database; TestClient runs the lifespan), then a model is trained and
 # fitted (that compiles the fit's own kernels), then a scene of every level is learned and one
 # is inferred. The script prints what start-up froze and the modules those requests imported,
 # then the numba kernels of any module that gained a compiled signature during them.
@@ -22,9 +23,10 @@ import gc, json, sys
 import numba
 import numpy as np
 from fastapi.testclient import TestClient
-from app.main import create_app
+from app.serve import serving_app
 from core.world import World
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, make_settings, synthetic_training_objects
+from tests.servers import migrate
 
 
 def compiled():
@@ -38,7 +40,8 @@ def compiled():
 
 
 world = World.paper(0)
-with TestClient(create_app(make_settings(sys.argv[1]))) as client:
+migrate(sys.argv[1])
+with TestClient(serving_app(make_settings(sys.argv[1]))) as client:
     model = client.post("/v1/models", json={"name": "w", "hyperparameters": FAST_HYPERPARAMETERS}).json()["id"]
     objects = synthetic_training_objects(world, seed=3)
     assert client.post(f"/v1/models/{model}/training-objects", json={"objects": objects}).status_code == 201

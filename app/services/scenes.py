@@ -199,7 +199,7 @@ def _answer(
     labels: Callable[[int], str | None],
 ) -> SceneRead:
     """The scene's answer, built without validation: every value is already of its field's
-    type (Python ints, floats and strs; validating ~450 numbers cost ≈ 0.1 ms a scene).
+    type (Python ints, floats and strs; what validating them cost: docs/benchmarks.md).
     ``labels`` gives a context's label (one primary-key read of the write's session)."""
     posterior = update.context_posterior
     map_context = int(np.argmax(posterior))

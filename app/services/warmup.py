@@ -3,9 +3,9 @@ kernel a scene request runs compiled (or loaded from numba's on-disk cache), and
 start-up made frozen out of the garbage collector's full collections.
 
 Numba compiles a kernel on its first call. With an empty cache (a new machine, a new image,
-changed code) the first concept-level scene after a start took 12.3 s and the first
-feature-level one 1.25 s here, while ``/readyz`` already answered 200 after 2.0 s: a robot's
-first scenes would time out against a server that said it was ready. So the start-up runs a
+changed code) the first scenes after a start took seconds while ``/readyz`` already answered
+200 (the figures: docs/benchmarks.md): a robot's first scenes would time out against a server
+that said it was ready. So the start-up runs a
 small scene of each level (concepts as names and as a probability map, features, raw payloads)
 through the functions a request runs — perception, the concept webs, Eq. 6 feedback, the online
 Incremental-LDA update with its growth checks, fold-in inference — on a throwaway model that is
@@ -15,16 +15,15 @@ compiled are the ones requests use.
 Prototypes are fitted with k-means here, not RGNG: RGNG runs only in ``/fit``, which is no
 latency path, and compiling it would lengthen every cold start.
 
-The freeze: after start-up the process holds ≈ 270,000 objects the cyclic garbage collector
-tracks (the modules of numpy, scipy, librosa, numba and the web stack, compiled kernels, the
-models loaded), and a full collection walks them all: 128 ms right after start-up here, a
-stall of every request in the process. Full collections are rare while serving (in a process
-serving through TestClient, 2,000 feature-level scenes left 287 more tracked objects and caused none), but fits,
-new models and filling caches bring them on. ``gc.freeze()`` moves start-up's objects to the
-permanent generation, which collections skip: the same 2,000 scenes then caused 3 full
-collections of at most 2.4 ms. The cost: cyclic garbage among frozen objects is never
-collected (reference counting still frees the rest), e.g. the cycles of a model loaded at
-start-up and deleted later; objects made after start-up are not frozen.
+The freeze: after start-up the process holds hundreds of thousands of objects the cyclic
+garbage collector tracks (the modules of numpy, scipy, librosa, numba and the web stack,
+compiled kernels), and a full collection walks them all, a stall of every request in the
+process. Full collections are rare while serving, but fits, new models and filling caches
+bring them on. ``gc.freeze()`` moves start-up's objects to the permanent generation, which
+collections skip (the stalls before and after: docs/benchmarks.md). ``contextweb serve``
+runs both (app/serve.py, ``serving_app``), not the app factory, before the app loads its
+models. The cost: cyclic garbage among frozen objects is never collected (reference counting
+still frees the rest); objects made later, the loaded models among them, are not frozen.
 """
 
 from __future__ import annotations

@@ -44,8 +44,8 @@ long form):
   (padded edge frames would register the recording's start and end as sound onset
   and offset, so any sound would show a large range). The mel projection, which
   librosa.feature.mfcc(y=...) does with a BLAS product, is a plain einsum here:
-  the same numbers, but no BLAS thread pool (measured on the shared 2-core machine:
-  1 ms instead of 30 ms when the cores are busy);
+  the same numbers, but no BLAS thread pool, which stalls when the cores are busy
+  (docs/benchmarks.md);
 - finger statistics: change = last - first, min, max, mean, population variance
   (ddof = 0) and its square root;
 - a missing modality (``audio`` or ``finger`` is None: the behaviour that records
@@ -295,7 +295,8 @@ def planar_f_thresholds(neighbours: int) -> np.ndarray:
     """
     dof = np.arange(3 * neighbours - 5)
     thresholds = np.full(dof.size, np.inf)
-    # F's quantile function itself (what scipy.stats.f.ppf calls), without importing scipy.stats (0.6 s).
+    # F's quantile function itself (what scipy.stats.f.ppf calls), without importing scipy.stats
+    # (a slow import: docs/benchmarks.md).
     thresholds[1:] = scipy.special.fdtri(3, dof[1:], 1.0 - PLANAR_TEST_LEVEL)
     thresholds.setflags(write=False)
     return thresholds

@@ -2,8 +2,8 @@
 
 One perception measures ~10 effects against 10 verb prototypes and one entity
 against 16 noun and adjective prototypes; numpy spends most of that time
-allocating and walking the (n, C, d) broadcast (≈ 50 µs for 13 effects, against
-≈ 9 µs here). Each D(c, x) sums its d masked squares in numpy's own pairwise
+allocating and walking the (n, C, d) broadcast, which this loop avoids (the timings:
+docs/benchmarks.md). Each D(c, x) sums its d masked squares in numpy's own pairwise
 order (:func:`pairwise_sum`), so the distances equal the former numpy
 expression bit for bit and the perception probabilities did not move.
 """

@@ -284,7 +284,7 @@ class Eq1Prototypes:
     1.0 for a concept without a relevant feature), ``sizes[c]`` their count as a
     float. The distances are a numba loop (``_eq1_kernels``) that reproduces the
     former numpy expression ``sqrt(((z - mu)**2 * weights).sum()) / sizes`` bit for bit;
-    its arrays are C-ordered float64, so that it compiles once (≈ 3 s, then cached).
+    its arrays are C-ordered float64, so that it compiles once, then is cached (docs/benchmarks.md).
     """
 
     means: np.ndarray

@@ -133,8 +133,8 @@ def save_scene(session: Session, model_id: str, changes: SceneChanges) -> None:
 _INSERT_TOKEN = "INSERT INTO token (model_id, id, scene_id, word_id, context, version) VALUES (?, ?, ?, ?, ?, ?)"
 # A reassigned token is written as its whole row, upserted on its primary key: on PostgreSQL an
 # UPDATE ... FROM unnest(...) is planned from the table's statistics, and with statistics older
-# than the model's growth it hash-joined every token of the model (≈ 9 ms at 40,000 tokens,
-# growing with the corpus); the arbiter index of ON CONFLICT is probed row by row whatever the
+# than the model's growth it hash-joined every token of the model (a cost growing with the
+# corpus: docs/benchmarks.md); the arbiter index of ON CONFLICT is probed row by row whatever the
 # statistics say. The row's other values are the stored ones (the in-memory state's).
 _UPSERT_TOKEN = (
     "INSERT INTO token (model_id, id, scene_id, word_id, context, version) VALUES (?, ?, ?, ?, ?, ?) "
@@ -145,7 +145,7 @@ _UPSERT_COUNT = (
     "ON CONFLICT (model_id, context, word_id) DO UPDATE SET count = excluded.count, version = excluded.version"
 )
 # PostgreSQL: one statement per table with the rows as arrays (``unnest``). psycopg's
-# executemany, even pipelined, costs ≈ 30 µs of Python per row, and a scene has ~100-250
+# executemany, even pipelined, costs Python time per row (docs/benchmarks.md), and a scene has ~100-250
 # rows (its tokens, the tokens its sweeps reassigned, the n_kw entries that moved).
 # Each array holds distinct keys, as ON CONFLICT ... DO UPDATE requires.
 _INSERT_TOKENS = (
@@ -305,8 +305,8 @@ def load_changes(session: Session, model_id: str, *, since_version: int, word_co
     )
 
 
-# Bulk reads straight through the driver: numpy converts the driver's tuples ~25x faster than
-# SQLAlchemy's Row objects (measured: 50,000 rows in 68 ms against 1.6 s).
+# Bulk reads straight through the driver: numpy converts the driver's tuples much faster than
+# SQLAlchemy's Row objects (the measurement: docs/benchmarks.md).
 _SELECT_TOKENS = "SELECT scene_id, word_id, context FROM token WHERE model_id = ? ORDER BY id"
 _SELECT_COUNTS = "SELECT context, word_id, count FROM context_word_count WHERE model_id = ?"
 _SELECT_TOKENS_SINCE = (

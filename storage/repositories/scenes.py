@@ -66,7 +66,8 @@ class StoredAnswer(NamedTuple):
 
 def find_by_idempotency_key(session: Session, model_id: str, key: str) -> StoredAnswer | None:
     """The scene stored under ``key``, straight through the driver: the look-up runs before every
-    keyed scene (a robot's bridge keys them all), and through the ORM it cost ≈ 1 ms on PostgreSQL."""
+    keyed scene (a robot's bridge keys them all), and the ORM's cost on PostgreSQL (docs/benchmarks.md)
+    was not worth it."""
     row = DriverStatements(session).fetchone(_FIND_BY_KEY, (model_id, key))
     return None if row is None else StoredAnswer(*row)
 

@@ -3,8 +3,8 @@
 Bags are read with ``rosbags`` (Apache-2.0, pure Python, no ROS install),
 imported only inside these functions: the service never imports it, and the
 bridge works without it until a bag is replayed (``pip install
-'contextweb[bags]'``). A mapping file (:mod:`bridge.mapping`) says which topic
-carries what; markers or a fixed schedule (:mod:`bridge.segments`) cut the bag
+'contextweb[bags]'``). A mapping file (:mod:`bridge.tools.mapping`) says which topic
+carries what; markers or a fixed schedule (:mod:`bridge.tools.segments`) cut the bag
 into scenes, objects and interactions. Within an interaction window:
 
 * before = the first cloud on the before topic, after = the last cloud on the
@@ -32,9 +32,9 @@ from typing import TYPE_CHECKING, Any, Self
 import numpy as np
 
 from bridge.client import Client, QueuedScene
-from bridge.mapping import AudioStream, Haptics, Mapping, Proprioception
+from bridge.tools.mapping import AudioStream, Haptics, Mapping, Proprioception
 from bridge.models import SceneObject, SceneRead
-from bridge.segments import (
+from bridge.tools.segments import (
     InteractionPlan,
     ObjectPlan,
     ScenePlan,
@@ -46,7 +46,7 @@ from bridge.segments import (
     plan_from_markers,
     plan_from_windows,
 )
-from bridge.simulate import DEFAULT_MAX_POINTS, raw_object
+from bridge.tools.simulate import DEFAULT_MAX_POINTS, raw_object
 from core.errors import InvalidInputError
 from core.payloads import Audio, Interaction, ObjectRecording, PointCloud
 

@@ -1,8 +1,8 @@
 """The replay mapping file: which recorded stream carries what, and how interactions are segmented.
 
 A TOML file (read with the standard library's ``tomllib``), shared by ROS bags
-(:mod:`bridge.bags`, streams are topics) and yarpdatadumper logs
-(:mod:`bridge.yarp`, streams are dump folders). docs/bridge.md has the full
+(:mod:`bridge.tools.bags`, streams are topics) and yarpdatadumper logs
+(:mod:`bridge.tools.yarp`, streams are dump folders). docs/bridge.md has the full
 format and an example; every problem is an :class:`InvalidInputError` whose
 field is the mapping key (``mapping.haptics.reduce``).
 """

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bridge.mapping import Windows
+from bridge.tools.mapping import Windows
 from core.errors import InvalidInputError
 from core.payloads import FingerSeries, ObjectRecording
 

@@ -15,8 +15,8 @@ One object is one folder (docs/bridge.md has the full layout)::
             audio.wav          optional: any sample rate, mixed down to mono
 
 A scene is a folder of object folders (or one object folder alone). ROS bags
-(:mod:`bridge.bags`) and yarpdatadumper sessions (:mod:`bridge.yarp`) are
-replayed too, with a mapping file (``--mapping``, :mod:`bridge.mapping`). Files are
+(:mod:`bridge.tools.bags`) and yarpdatadumper sessions (:mod:`bridge.tools.yarp`) are
+replayed too, with a mapping file (``--mapping``, :mod:`bridge.tools.mapping`). Files are
 read with maintained readers: ``plyfile`` for PLY, ``pypcd4`` for PCD (ASCII,
 binary and binary_compressed), ``soundfile`` for WAV, ``numpy`` for CSV/NPY;
 each becomes a validated :mod:`core.payloads` object, so a bad file fails with
@@ -40,7 +40,7 @@ from pypcd4 import PointCloud as PcdCloud
 
 from bridge.client import Client, QueuedScene
 from bridge.models import SceneObject, TrainingObject
-from bridge.simulate import DEFAULT_MAX_POINTS, add_service_arguments, raw_object
+from bridge.tools.simulate import DEFAULT_MAX_POINTS, add_service_arguments, raw_object
 from core.errors import InvalidInputError
 from core.payloads import Audio, FingerSeries, Interaction, ObjectRecording, PointCloud
 
@@ -236,8 +236,8 @@ def run(args: argparse.Namespace) -> int:
 
 def recording_format(path: Path) -> str:
     """``bag``, ``yarp`` or ``folder``: what ``--format auto`` takes a path for."""
-    from bridge.bags import is_bag
-    from bridge.yarp import is_yarp_session
+    from bridge.tools.bags import is_bag
+    from bridge.tools.yarp import is_yarp_session
 
     if is_bag(path):
         return "bag"
@@ -245,11 +245,11 @@ def recording_format(path: Path) -> str:
 
 
 def _run_recordings(args: argparse.Namespace, formats: dict[Path, str]) -> int:
-    """Replay bags and yarp sessions (mixed with folders, if given). Imported here: ``bridge.yarp`` reads
+    """Replay bags and yarp sessions (mixed with folders, if given). Imported here: ``bridge.tools.yarp`` reads
     object folders with this module, and only a bag replay needs ``rosbags``."""
-    from bridge.bags import replay_bag
-    from bridge.mapping import read_mapping
-    from bridge.yarp import replay_yarp
+    from bridge.tools.bags import replay_bag
+    from bridge.tools.mapping import read_mapping
+    from bridge.tools.yarp import replay_yarp
 
     if args.training:
         print("contextweb bridge replay: --training takes object folders only", file=sys.stderr)

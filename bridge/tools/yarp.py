@@ -14,7 +14,7 @@ What is read (the mapping file names the dump folders, relative to the
 session folder given on the command line):
 
 * ``[segmentation] markers``: a port of marker bottles in the grammar of
-  :mod:`bridge.segments` (``look cup``, ``begin cup grasp``, ``end``; quoted
+  :mod:`bridge.tools.segments` (``look cup``, ``begin cup grasp``, ``end``; quoted
   strings are unquoted with :mod:`shlex`, as Bottle text quotes them);
 * ``[proprioception] column``: one joint of a ``state:o`` port, e.g. column 11
   of ``/icub/right_arm/state:o`` (16 values, degrees: 11 is the index finger's
@@ -22,7 +22,7 @@ session folder given on the command line):
 * ``[haptics] columns``: taxels of a skin port, e.g. columns 0–11 of
   ``/icub/skin/right_hand_comp`` (the index fingertip), reduced per line;
 * ``[clouds] folder``: the clouds (and audio) are not on YARP ports here: they
-  are the folder layout of ``bridge.replay``, one object folder per object name
+  are the folder layout of ``bridge.tools.replay``, one object folder per object name
   in the markers. The finger series of an interaction comes from the logs
   (replacing any finger.csv), segmented by the same markers.
 """
@@ -37,12 +37,12 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge.bags import post_scenes, reduce_values
+from bridge.tools.bags import post_scenes, reduce_values
 from bridge.client import Client, QueuedScene
-from bridge.mapping import Mapping
+from bridge.tools.mapping import Mapping
 from bridge.models import SceneRead
-from bridge.replay import read_object
-from bridge.segments import (
+from bridge.tools.replay import read_object
+from bridge.tools.segments import (
     NANOSECONDS,
     InteractionPlan,
     ObjectPlan,
@@ -54,7 +54,7 @@ from bridge.segments import (
     plan_from_markers,
     plan_from_windows,
 )
-from bridge.simulate import DEFAULT_MAX_POINTS
+from bridge.tools.simulate import DEFAULT_MAX_POINTS
 from core.errors import InvalidInputError
 from core.payloads import FingerSeries, ObjectRecording
 
@@ -247,7 +247,7 @@ def replay_yarp(
     limit: int | None = None,
     on_answer: Callable[[SegmentedScene, SceneRead | QueuedScene], None] | None = None,
 ) -> list[SceneRead | QueuedScene]:
-    """Post the session's scenes in order, each with its key (as :func:`bridge.bags.replay_bag`)."""
+    """Post the session's scenes in order, each with its key (as :func:`bridge.tools.bags.replay_bag`)."""
     session = YarpSession(path, mapping)
     scenes = session.scenes(session.plans()[:limit])
     return post_scenes(client, model_id, scenes, seed=seed, max_points=max_points, on_answer=on_answer)

@@ -161,7 +161,9 @@ class Difficulty:
 EASY = Difficulty()
 
 
-def _overlapping(low: tuple[float, float], high: tuple[float, float], overlap: float) -> tuple[tuple[float, float], tuple[float, float]]:
+def _overlapping(
+    low: tuple[float, float], high: tuple[float, float], overlap: float
+) -> tuple[tuple[float, float], tuple[float, float]]:
     """The ranges of a pair's lower and higher adjective, each extended towards the other by
     ``overlap`` times the distance to the far end of the other's range (unchanged at 0)."""
     if overlap == 0.0:

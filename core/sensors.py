@@ -110,6 +110,68 @@ _SILENT_LOUDNESS = (0.0, 0.004)
 
 
 @dataclass(frozen=True)
+class Difficulty:
+    """How hard a world is to perceive: the knobs that make nouns and adjectives overlap
+    (docs/world.md, "Difficulty"). The defaults are the ``easy`` world, bit for bit.
+
+    Adjectives: ``adjective_overlap`` extends each adjective's range of its physical
+    parameter (width, height, stiffness, rattle loudness) by that fraction of the
+    distance to the far end of its partner's range, so the two overlap (0: the easy
+    ranges); ``roundness_overlap`` makes round/edgy graded: a prism-like body's corner
+    radius is a fraction ρ of its half-width, ρ ∈ [1 - x, 1] when round and
+    [0, 0.2 + x] when edgy (0: round bodies are fully round, the easy rule).
+    Nouns: ``handle_probability`` of a cup; ``depth_noise_scale`` multiplies the
+    Kinect's random depth error; an occluder in front hides, with
+    ``occlusion_probability`` per snapshot, a share U(0, ``occlusion_fraction``) of the
+    cloud from a random side (a partial view); ``lying_probability`` is the chance that
+    the supervisor puts the object down on its side for the first look (pose).
+    """
+
+    name: str = "easy"
+    adjective_overlap: float = 0.0
+    roundness_overlap: float = 0.0
+    handle_probability: float = 0.75
+    depth_noise_scale: float = 1.0
+    occlusion_probability: float = 0.0
+    occlusion_fraction: float = 0.0
+    lying_probability: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in self.__dataclass_fields__:
+            if name == "name":
+                continue
+            value = getattr(self, name)
+            top = math.inf if name == "depth_noise_scale" else 1.0
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value <= top:
+                raise InvalidInputError(f"difficulty.{name}", f"must be a number in [0, {top}], got {value!r}")
+            object.__setattr__(self, name, float(value))
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Difficulty:
+        unknown = set(data) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise InvalidInputError("difficulty", f"unknown fields {sorted(unknown)}")
+        return cls(**data)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+#: The easy world's difficulty: every knob at the value the simulator had before worlds had one.
+EASY = Difficulty()
+
+
+def _overlapping(
+    low: tuple[float, float], high: tuple[float, float], overlap: float
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The ranges of a pair's lower and higher adjective, each extended towards the other by
+    ``overlap`` times the distance to the far end of the other's range (unchanged at 0)."""
+    if overlap == 0.0:
+        return low, high
+    return (low[0], low[1] + overlap * (high[1] - low[1])), (high[0] - overlap * (high[0] - low[0]), high[1])
+
+
+@dataclass(frozen=True)
 class BehaviourEffect:
     """What a behaviour does to an object's pose: a world parameter the planner learns back (§V-E).
 
@@ -197,7 +259,7 @@ class ObjectBody:
 
     def section(self, a: float, b: float) -> tuple[float, float, float]:
         """A cross-section of half-sizes a, b with this body's corner radius."""
-        return a, b, (min(a, b) if self.rounded else min(self.edge_radius, 0.5 * min(a, b)))
+        return a, b, (min(a, b) if self.rounded else min(self.edge_radius, min(a, b)))
 
     @property
     def upright_extent(self) -> tuple[float, float, float]:
@@ -246,27 +308,34 @@ def _adjective_values(adjectives: Collection[str]) -> dict[str, bool]:
     return values
 
 
-def make_body(primitive: str, adjectives: Collection[str], rng: np.random.Generator) -> ObjectBody:
+def make_body(
+    primitive: str, adjectives: Collection[str], rng: np.random.Generator, difficulty: Difficulty = EASY
+) -> ObjectBody:
     """Draw a physical object of a primitive whose dimensions and materials follow its adjectives.
 
     Within a noun, real objects vary (Fig. 3): edgy bodies have their edges bevelled
     (radius up to a tenth of the smaller side), soft balls are squashed by up to 20 %, a quarter of the cups
     have no handle, a tool's handle sits anywhere along its head (mallet to hammer),
-    and a standing plate leans back by 8-25 degrees.
+    and a standing plate leans back by 8-25 degrees. ``difficulty`` widens the adjectives'
+    ranges into each other and grades round/edgy (:class:`Difficulty`).
     """
     if primitive not in _SIZES:
         raise InvalidInputError("primitive", f"{primitive!r} is not one of {PRIMITIVES}")
     has = _adjective_values(adjectives)
     sizes = _SIZES[primitive]
-    width = float(rng.uniform(*(sizes.thin if has["thin"] else sizes.thick)))
-    height = float(rng.uniform(*(sizes.tall if has["tall"] else sizes.short)))
+    overlap = difficulty.adjective_overlap
+    thin, thick = _overlapping(sizes.thin, sizes.thick, overlap)
+    # A plate's two height ranges are different things (a dish's height, a standing plate's diameter).
+    short, tall = _overlapping(sizes.short, sizes.tall, 0.0 if primitive == "plate" else overlap)
+    width = float(rng.uniform(*(thin if has["thin"] else thick)))
+    height = float(rng.uniform(*(tall if has["tall"] else short)))
     shape: dict[str, Any] = {"depth": width, "edge_radius": float(rng.uniform(0.0, 0.2)) * 0.5 * width}
     if primitive == "box":
         shape["depth"] = width * float(rng.uniform(0.55, 1.0))
         shape["edge_radius"] = float(rng.uniform(0.0, 0.2)) * 0.5 * shape["depth"]
     elif primitive == "ball":
         # As spherical as the height range allows, then squashed a little (more if soft).
-        low, high = sizes.tall if has["tall"] else sizes.short
+        low, high = tall if has["tall"] else short
         height = min(max(width, low), high) * float(rng.uniform(0.97, 1.0) if has["hard"] else rng.uniform(0.8, 1.0))
     elif primitive == "plate":
         # A tall plate stands in a rack (its diameter then also fills the height range); a short one lies flat.
@@ -275,7 +344,7 @@ def make_body(primitive: str, adjectives: Collection[str], rng: np.random.Genera
             shape.update(depth=width, lean=math.radians(float(rng.uniform(8.0, 25.0))))
         height = float(rng.uniform(*sizes.short))
     elif primitive == "cup":
-        shape["has_handle"] = bool(rng.random() < 0.75)
+        shape["has_handle"] = bool(rng.random() < difficulty.handle_probability)
     elif primitive == "tool":
         head_radius = float(rng.uniform(0.018, 0.026))
         handle_radius = float(rng.uniform(0.010, 0.014))
@@ -285,21 +354,43 @@ def make_body(primitive: str, adjectives: Collection[str], rng: np.random.Genera
             handle_radius=handle_radius,
             handle_offset=float(rng.uniform(-0.5, 0.5)) * max(width / 2 - handle_radius, 0.0),
         )
-    stiffness = float(rng.uniform(*_STIFFNESS["hard" if has["hard"] else "soft"]))
-    if has["noisy"]:
-        loudness = float(np.exp(rng.uniform(np.log(_NOISY_LOUDNESS[0]), np.log(_NOISY_LOUDNESS[1]))))
+    if difficulty.roundness_overlap > 0.0 and primitive in ("box", "cylinder", "cup"):
+        # Graded roundness: the corner radius as a fraction of the half-width, overlapping between the labels.
+        graded = difficulty.roundness_overlap
+        fraction = rng.uniform(1.0 - graded, 1.0) if has["round"] else rng.uniform(0.0, min(0.2 + graded, 1.0))
+        shape["edge_radius"] = float(fraction) * 0.5 * min(width, shape["depth"])
+        rounded = False
     else:
-        loudness = float(rng.uniform(*_SILENT_LOUDNESS))
+        rounded = has["round"]
+    soft, hard = _overlapping(_STIFFNESS["soft"], _STIFFNESS["hard"], overlap)
+    stiffness = float(rng.uniform(*(hard if has["hard"] else soft)))
+    silent, noisy = _loudness_ranges(overlap)
+    if has["noisy"]:
+        loudness = float(np.exp(rng.uniform(np.log(noisy[0]), np.log(noisy[1]))))
+    else:
+        loudness = float(rng.uniform(*silent))
     return ObjectBody(
         primitive=primitive,
         width=width,
         height=height,
-        rounded=has["round"],
+        rounded=rounded,
         stiffness=stiffness,
         loudness=loudness,
         rattle_hz=float(rng.uniform(1500.0, 5000.0)),
         **shape,
     )
+
+
+def _loudness_ranges(overlap: float) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The silent and noisy ranges of the rattle's loudness, overlapped on a log scale (a decade
+    below the silent maximum stands for the silent range's far end, since its floor is 0)."""
+    if overlap == 0.0:
+        return _SILENT_LOUDNESS, _NOISY_LOUDNESS
+    top = math.log(_SILENT_LOUDNESS[1])
+    (_, silent_top), (noisy_low, noisy_high) = _overlapping(
+        (top - math.log(10.0), top), (math.log(_NOISY_LOUDNESS[0]), math.log(_NOISY_LOUDNESS[1])), overlap
+    )
+    return (0.0, math.exp(silent_top)), (math.exp(noisy_low), math.exp(noisy_high))
 
 
 # --- surface sampling: every patch gives area-uniform points with outward normals -------------------
@@ -604,13 +695,14 @@ def _visible(
     return visible
 
 
-def point_cloud(body: ObjectBody, pose: Pose, rng: np.random.Generator) -> PointCloud:
+def point_cloud(body: ObjectBody, pose: Pose, rng: np.random.Generator, difficulty: Difficulty = EASY) -> PointCloud:
     """One Kinect snapshot of the body at a pose: only its camera-visible side, with sensor noise.
 
     Surface points are drawn area-uniformly, culled to what the camera sees, holed
     where the sensor returns nothing, and ``POINT_DENSITY`` per m² of the visible
     area are kept (between ``MIN_POINTS`` and ``MAX_POINTS``), so bigger objects
-    give bigger clouds, as a down-sampled Kinect segment does.
+    give bigger clouds, as a down-sampled Kinect segment does. ``difficulty`` scales the
+    depth noise and may hide part of the cloud (:class:`Difficulty`).
     """
     rotation = _body_rotation(body, pose)
     patches = _facing_camera(_patches(body), rotation, pose)
@@ -647,22 +739,34 @@ def point_cloud(body: ObjectBody, pose: Pose, rng: np.random.Generator) -> Point
             target = _points_for(total_area * kept_count / drawn, density)
     cloud = np.concatenate(kept, axis=1)
     cloud = cloud[:, rng.choice(cloud.shape[1], size=target, replace=False)]
-    return PointCloud(_kinect_noise(cloud, rng).T)
+    if difficulty.occlusion_probability > 0.0 and rng.random() < difficulty.occlusion_probability:
+        cloud = _occluded(cloud, float(rng.uniform(0.0, difficulty.occlusion_fraction)), rng)
+    return PointCloud(_kinect_noise(cloud, rng, difficulty.depth_noise_scale).T)
+
+
+def _occluded(cloud: np.ndarray, hidden: float, rng: np.random.Generator) -> np.ndarray:
+    """The cloud ((3, n)) without the ``hidden`` share of its points furthest along a random direction
+    of the camera's image plane (x, z): a partial view, cut off by an occluder or the segmentation."""
+    angle = float(rng.uniform(-math.pi, math.pi))
+    along = math.cos(angle) * cloud[0] + math.sin(angle) * cloud[2]
+    return cloud[:, along <= np.quantile(along, 1.0 - hidden)]
 
 
 def _points_for(visible_area: float, density: float) -> int:
     return int(np.clip(round(visible_area * density), MIN_POINTS, MAX_POINTS))
 
 
-def _kinect_noise(points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+def _kinect_noise(points: np.ndarray, rng: np.random.Generator, scale: float = 1.0) -> np.ndarray:
     """Depth along each viewing ray: random error, then quantised to the disparity step ((3, n) in and out).
 
     A structured-light sensor's error is overwhelmingly along the ray (its lateral
-    error is below the 2 mm pixel footprint at this range), so only that is modelled.
+    error is below the 2 mm pixel footprint at this range), so only that is modelled. ``scale``
+    multiplies the random error (a harder world's sensor), not the quantisation step.
     """
     ray = points - CAMERA_POSITION[:, None]
     distance = np.sqrt((ray * ray).sum(axis=0))
-    noisy = distance + (DEPTH_NOISE_BASE + DEPTH_NOISE_PER_M2 * distance**2) * rng.standard_normal(distance.size)
+    sigma = (DEPTH_NOISE_BASE + DEPTH_NOISE_PER_M2 * distance**2) * scale
+    noisy = distance + sigma * rng.standard_normal(distance.size)
     step = DEPTH_STEP_PER_M2 * distance**2
     measured = np.round(noisy / step) * step
     return CAMERA_POSITION[:, None] + ray * (measured / distance)
@@ -789,22 +893,28 @@ def record_object(
     behaviours: Sequence[str],
     effects: Mapping[str, BehaviourEffect],
     rng: np.random.Generator,
+    difficulty: Difficulty = EASY,
 ) -> ObjectRecording:
-    """Run the §II-C protocol on one object: a look, then one interaction per applicable behaviour."""
+    """Run the §II-C protocol on one object: a look, then one interaction per applicable behaviour.
+
+    With ``difficulty.lying_probability`` the first look finds the object lying on its side."""
     if not behaviours:
         raise InvalidInputError("behaviours", "an object needs at least one applicable behaviour to be recorded")
     missing = [b for b in behaviours if b not in effects]
     if missing:
         raise InvalidInputError("behaviour_effects", f"no physical effect is defined for {missing}")
-    look = point_cloud(body, place(rng), rng)
+    pose = place(rng)
+    if difficulty.lying_probability > 0.0 and rng.random() < difficulty.lying_probability:
+        pose = Pose(pose.x, pose.y, pose.yaw, tip_heading=float(rng.uniform(-math.pi, math.pi)))
+    look = point_cloud(body, pose, rng, difficulty)
     with_audio = _audio_behaviour(behaviours, effects)
     interactions = []
     for behaviour in behaviours:
         effect = effects[behaviour]
         start = place(rng)
-        before = point_cloud(body, start, rng)
+        before = point_cloud(body, start, rng, difficulty)
         finger = grasp_finger_series(body, rng) if effect.kind == "lift" else None
         audio = handling_audio(body, rng, shaking=effect.kind == "shake") if behaviour == with_audio else None
-        after = point_cloud(body, apply_behaviour(body, start, effect, rng), rng)
+        after = point_cloud(body, apply_behaviour(body, start, effect, rng), rng, difficulty)
         interactions.append(Interaction(behaviour=behaviour, before=before, after=after, audio=audio, finger=finger))
     return ObjectRecording(look=look, interactions=tuple(interactions))

@@ -21,11 +21,16 @@ import numpy as np
 
 from core.errors import InvalidInputError
 from core.payloads import ObjectRecording
-from core.sensors import PRIMITIVES, BehaviourEffect, ObjectBody, make_body, record_object
+from core.sensors import EASY, PRIMITIVES, BehaviourEffect, Difficulty, ObjectBody, make_body, record_object
 from core.vocabulary import Vocabulary, load_world_file
 
 TRAIN = "train"
 TEST = "test"
+
+#: The paper world's difficulties (presets in ``core/data/paper_world.json``, docs/world.md "Difficulty").
+WORLDS: tuple[str, ...] = ("easy", "hard")
+#: The difficulty the experiments use unless told otherwise (``--world``).
+DEFAULT_WORLD = "easy"
 
 # Independent random streams derived from one seed, so that e.g. drawing scenes never
 # changes the objects, and recording one object never changes another one's body.
@@ -35,6 +40,14 @@ _RECORDING_STREAM = 2
 _SCENES_STREAM = 3
 _NOUN_SCENE_STREAM = 4
 _GENERIC_CONFIG_STREAM = 5
+
+
+def paper_difficulty(name: str, paper: Mapping[str, Any] | None = None) -> Difficulty:
+    """The named difficulty preset of ``core/data/paper_world.json`` (``easy``: the defaults)."""
+    presets = (paper if paper is not None else load_world_file("paper"))["difficulties"]
+    if name not in presets:
+        raise InvalidInputError("world", f"unknown difficulty {name!r}; the paper world has {sorted(presets)}")
+    return Difficulty.from_dict({"name": name, **presets[name]})
 
 
 def _is_count(value: object, minimum: int = 0) -> bool:
@@ -70,7 +83,8 @@ class ContextSpec:
 class WorldConfig:
     """A world as data. ``noun_adjective_counts[noun][adjective]`` is Table I; ``applicability``
     Table II; ``contexts`` Table IV; ``shapes`` the primitive each noun is rendered as (a noun
-    named like a primitive may be left out); ``behaviour_effects`` each verb's physics."""
+    named like a primitive may be left out); ``behaviour_effects`` each verb's physics;
+    ``difficulty`` how much the objects' looks and the adjectives' ranges overlap."""
 
     name: str
     vocabulary: Vocabulary
@@ -81,6 +95,7 @@ class WorldConfig:
     n_test: int
     shapes: dict[str, str] = field(default_factory=dict)
     behaviour_effects: dict[str, BehaviourEffect] = field(default_factory=dict)
+    difficulty: Difficulty = EASY
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "noun_adjective_counts", {n: dict(c) for n, c in self.noun_adjective_counts.items()})
@@ -224,6 +239,7 @@ class WorldConfig:
                     verb: BehaviourEffect.from_dict(effect)
                     for verb, effect in data.get("behaviour_effects", {}).items()
                 },
+                difficulty=Difficulty.from_dict(data.get("difficulty", {})),
             )
         except (KeyError, TypeError, AttributeError) as error:
             raise InvalidInputError("world", f"malformed world description ({error!r})") from None
@@ -238,6 +254,7 @@ class WorldConfig:
             "contexts": {context.name: context.to_dict() for context in self.contexts},
             "shapes": dict(self.shapes),
             "behaviour_effects": {verb: effect.to_dict() for verb, effect in self.behaviour_effects.items()},
+            "difficulty": self.difficulty.to_dict(),
         }
 
     @classmethod
@@ -246,9 +263,11 @@ class WorldConfig:
         return cls.from_dict(load_world_file(name))
 
     @classmethod
-    def paper(cls) -> WorldConfig:
-        """The paper's world: Tables I, II and IV, 45 training and 15 test objects."""
-        return cls.from_file("paper")
+    def paper(cls, difficulty: str = "easy") -> WorldConfig:
+        """The paper's world: Tables I, II and IV, 45 training and 15 test objects, perceived
+        at one of the file's named ``difficulties`` (:data:`WORLDS`; ``easy`` by default)."""
+        data = load_world_file("paper")
+        return cls.from_dict({**data, "difficulty": paper_difficulty(difficulty, data).to_dict()})
 
     @classmethod
     def generic(
@@ -258,6 +277,7 @@ class WorldConfig:
         nouns_per_context: int = 2,
         objects_per_noun: tuple[int, int] = (6, 12),
         test_fraction: float = 0.25,
+        difficulty: str = "easy",
     ) -> WorldConfig:
         """A world with any number of contexts, for testing context discovery beyond the paper's three.
 
@@ -271,7 +291,8 @@ class WorldConfig:
         (± 0.1 per noun). Behaviours follow the noun's handling class (fragile: grasp
         and move, like cups; rolling: no pushes, like balls; robust: all), as in
         Table II. Prevalent concepts (Table IV) are the nouns plus the adjectives at
-        least half of the context's objects carry.
+        least half of the context's objects carry. ``difficulty`` names one of the robot
+        world's difficulty presets (:data:`WORLDS`).
         """
         if not _is_count(n_contexts, 1):
             raise InvalidInputError("n_contexts", f"must be an integer >= 1, got {n_contexts!r}")
@@ -329,6 +350,7 @@ class WorldConfig:
             n_test=n_test,
             shapes=shapes,
             behaviour_effects={verb: BehaviourEffect.from_dict(e) for verb, e in robot["behaviour_effects"].items()},
+            difficulty=paper_difficulty(difficulty, robot),
         )
 
 
@@ -617,8 +639,8 @@ class World:
         self._bodies: dict[str, ObjectBody] = {}
 
     @classmethod
-    def paper(cls, seed: int = 0) -> World:
-        return cls(WorldConfig.paper(), seed)
+    def paper(cls, seed: int = 0, difficulty: str = "easy") -> World:
+        return cls(WorldConfig.paper(difficulty), seed)
 
     @classmethod
     def generic(cls, n_contexts: int, seed: int = 0, **options: Any) -> World:
@@ -647,13 +669,17 @@ class World:
         obj = self._own(obj)
         if obj.object_id not in self._bodies:
             rng = _rng(self.seed, _BODY_STREAM, self._index[obj.object_id])
-            self._bodies[obj.object_id] = make_body(self.config.primitive(obj.noun), obj.adjectives, rng)
+            self._bodies[obj.object_id] = make_body(
+                self.config.primitive(obj.noun), obj.adjectives, rng, self.config.difficulty
+            )
         return self._bodies[obj.object_id]
 
     def record(self, obj: WorldObject | str, rng: np.random.Generator | int) -> ObjectRecording:
         """What the robot senses of one object (§II-C): a look plus one interaction per applicable behaviour."""
         obj = self._own(obj)
-        return record_object(self.body(obj), obj.behaviours, self.config.behaviour_effects, _rng(rng))
+        return record_object(
+            self.body(obj), obj.behaviours, self.config.behaviour_effects, _rng(rng), self.config.difficulty
+        )
 
     def recordings(self, objects: Sequence[WorldObject] | None = None, seed: int = 0) -> dict[str, ObjectRecording]:
         """Recordings of many objects (default all), each from its own stream of ``seed``, so an

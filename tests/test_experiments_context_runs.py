@@ -105,7 +105,7 @@ def test_raw_tokens_bin_each_feature_over_its_range() -> None:
 
 def test_in_context_recognition_is_a_recognition_method() -> None:
     setup, _ = sigma.fitted_setup(0, quick=True)
-    assert list(recognition.METHODS) == ["perception", "concept_web", "in_context"]
+    assert list(recognition.METHODS) == ["perception", "concept_web", "in_context", "in_context_log"]
     probabilities = recognition.METHODS["in_context"](setup)
     assert probabilities.shape == setup.perception.shape
     np.testing.assert_allclose(probabilities[:, : len(setup.vocabulary.nouns)].sum(axis=1), 1.0)

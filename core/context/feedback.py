@@ -87,6 +87,10 @@ from core.vocabulary import Vocabulary
 
 #: σ of Eq. 6 that the paper chooses from Fig. 9's interval [0.4, 0.5].
 PAPER_SIGMA = 0.5
+#: How P(c) and P(c | χ) are pooled: Eq. 6's weighted sum (``linear``, the paper's), or the
+#: weighted geometric mean renormalised within each group (``log``; docs/feedback.md, "The hard world").
+POOLING_RULES: tuple[str, ...] = ("linear", "log")
+PAPER_POOLING = "linear"
 DEFAULT_TOLERANCE = 1e-6
 DEFAULT_MAX_ITERATIONS = 10
 #: Iterations an in-context sum-product pass may take undamped before the object is settled again with the defaults.
@@ -251,6 +255,7 @@ def contextual_feedback(
     perceived: Sequence[WebInference] | None = None,
     marginals: bool = True,
     warm_map: bool = False,
+    pooling: str = PAPER_POOLING,
 ) -> FeedbackResult:
     """Interpret a scene's objects in context by iterating webs, context and Eq. 6 (§IV-D).
 
@@ -268,8 +273,13 @@ def contextual_feedback(
     in-context max-product pass from the previous settling's max-product messages
     (step 1's ``perceived`` for the first) and runs it undamped, which can settle on
     another fixed point than the default cold start (measured there).
+
+    ``pooling`` = ``linear`` is Eq. 6 as written; ``log`` pools P(c) and P(c | χ) as
+    P(c)^σ P(c | χ)^(1-σ), renormalised over each group (:func:`pool`).
     """
     sigma, tolerance, max_iterations, seed = _checked_settings(sigma, tolerance, max_iterations, seed)
+    if pooling not in POOLING_RULES:
+        raise InvalidInputError("pooling", f"must be one of {POOLING_RULES}, got {pooling!r}")
     for name, flag in (("marginals", marginals), ("warm_map", warm_map)):
         if not isinstance(flag, bool):
             raise InvalidInputError(name, f"expected a bool, got {flag!r}")
@@ -297,7 +307,7 @@ def contextual_feedback(
     converged = False
     for iteration in range(1, max_iterations + 1):
         context = table.mixture(theta)
-        in_context = np.where(table.informed, sigma * plain + (1.0 - sigma) * context, plain)
+        in_context = pool(plain, context, table.informed, sigma, vocabulary, pooling)
         settled = _settle(web, in_context, applied, settled, marginals=marginals, warm_map=warm_map)
         settled_document = _document(settled, evidence)
         if np.array_equal(settled_document, document):
@@ -320,6 +330,37 @@ def contextual_feedback(
         iterations=iteration,
         converged=converged,
     )
+
+
+def pool(
+    web: np.ndarray, context: np.ndarray, informed: np.ndarray, sigma: float, vocabulary: Vocabulary, rule: str
+) -> np.ndarray:
+    """P*(c) from the web's P(c) and the context's P(c | χ), where the context is ``informed``.
+
+    ``linear`` is Eq. 6, σ P(c) + (1 - σ) P(c | χ). ``log`` is the logarithmic opinion pool
+    P(c)^σ P(c | χ)^(1-σ), renormalised over the nouns, over each adjective pair, and over
+    each verb's active/inactive: the context then acts as a prior that multiplies the web's
+    odds, so a web sure of an in-context noun stays sure, and a noun the context rules out
+    is ruled out (docs/feedback.md, "The hard world", has the measurements).
+    """
+    if rule == "linear":
+        return np.where(informed, sigma * web + (1.0 - sigma) * context, web)
+    floor = np.finfo(np.float64).tiny
+    weights = np.where(informed, (np.maximum(web, floor) ** sigma) * (np.maximum(context, floor) ** (1.0 - sigma)), web)
+    off = np.where(
+        informed,
+        (np.maximum(1.0 - web, floor) ** sigma) * (np.maximum(1.0 - context, floor) ** (1.0 - sigma)),
+        1.0 - web,
+    )
+    pooled = np.empty_like(web)
+    n_nouns, n_grouped = len(vocabulary.nouns), len(vocabulary.nouns) + len(vocabulary.adjectives)
+    nouns = weights[:, :n_nouns]
+    pooled[:, :n_nouns] = nouns / nouns.sum(axis=1, keepdims=True)
+    pairs = weights[:, n_nouns:n_grouped].reshape(len(web), -1, 2)
+    pooled[:, n_nouns:n_grouped] = (pairs / pairs.sum(axis=2, keepdims=True)).reshape(len(web), -1)
+    verbs = weights[:, n_grouped:]
+    pooled[:, n_grouped:] = verbs / (verbs + off[:, n_grouped:])
+    return np.where(informed, pooled, web)
 
 
 class _FoldIn:

@@ -26,7 +26,7 @@ import numpy as np
 
 from core.concept_web import ConceptWeb
 from core.context import IncrementalLDA
-from core.context.feedback import PAPER_SIGMA, contextual_feedback
+from core.context.feedback import PAPER_POOLING, PAPER_SIGMA, contextual_feedback
 from core.features import recording_features
 from core.vocabulary import Vocabulary
 from core.world import World, WorldObject
@@ -36,16 +36,16 @@ TRAINING_SCENES = 50
 MAX_OBJECTS_PER_SCENE = 5
 
 Features = tuple[np.ndarray, dict[str, np.ndarray]]
-_FEATURES: dict[tuple[str, int, int, str], Features] = {}
+_FEATURES: dict[tuple[str, str, int, int, str], Features] = {}
 
 
 def object_features(world: World, objects: Sequence[WorldObject], seed: int) -> dict[str, Features]:
     """Entity vector e and effect vectors f of each object's recording from ``seed``, by object id.
 
-    Memoised per (world name, world seed, recording seed, object): a recording
+    Memoised per (world name, difficulty, world seed, recording seed, object): a recording
     depends on nothing else (``World.recordings`` gives every object its own stream).
     """
-    prefix = (world.config.name, world.seed, int(seed))
+    prefix = (world.config.name, world.config.difficulty.name, world.seed, int(seed))
     missing = [obj for obj in objects if (*prefix, obj.object_id) not in _FEATURES]
     for object_id, recording in world.recordings(missing, seed=seed).items() if missing else ():
         _FEATURES[(*prefix, object_id)] = recording_features(recording)
@@ -85,13 +85,21 @@ def in_context_probabilities(
     *,
     sigma: float = PAPER_SIGMA,
     seed: int = 0,
+    pooling: str = PAPER_POOLING,
 ) -> tuple[np.ndarray, np.ndarray]:
     """P*(c) of Eq. 6 and the in-context webs' P(c) of every object, each (n_objects, n_concepts),
     every object interpreted in its scene (``core.context.feedback``)."""
     eq_6, settled = np.empty_like(perception), np.empty_like(perception)
     for members in scenes:
         feedback = contextual_feedback(
-            web, context_model, perception[members], vocabulary, applied=applied[members], sigma=sigma, seed=seed
+            web,
+            context_model,
+            perception[members],
+            vocabulary,
+            applied=applied[members],
+            sigma=sigma,
+            seed=seed,
+            pooling=pooling,
         )
         eq_6[members], settled[members] = feedback.in_context, feedback.in_context_web
     return eq_6, settled

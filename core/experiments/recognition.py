@@ -45,13 +45,14 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from core.concept_web import ConceptWeb
+from core.context.feedback import PAPER_POOLING
 from core.experiments import context_scenes
 from core.features import recording_features
 from core.prototypes import PrototypeSet, fit_prototypes, perceive
 from core.prototypes.prototypes import IRRELEVANT
 from core.prototypes.prototypes import METHODS as PROTOTYPE_METHODS
 from core.vocabulary import Vocabulary
-from core.world import World, WorldObject
+from core.world import DEFAULT_WORLD, WORLDS, World, WorldObject
 
 #: Random stream of the in-context method's context model and scenes, derived from the world seed.
 _IN_CONTEXT_STREAM = 7
@@ -95,15 +96,20 @@ def concept_web(setup: RecognitionSetup) -> np.ndarray:
     return np.array([inference.probabilities for inference in inferences])
 
 
-def in_context(setup: RecognitionSetup) -> np.ndarray:
+def in_context(setup: RecognitionSetup, pooling: str = PAPER_POOLING) -> np.ndarray:
     """P*(c) of Eq. 6 of every test object, interpreted in a pure-context scene (core.context.feedback)."""
     rng = np.random.default_rng([setup.world.seed, _IN_CONTEXT_STREAM])
     model = context_scenes.train_context_model(setup.world, setup.train, rng)
     scenes = context_scenes.pure_context_scenes(setup.world, setup.test, rng)
     eq_6, _ = context_scenes.in_context_probabilities(
-        setup.web, model, setup.vocabulary, setup.perception, setup.applied, scenes
+        setup.web, model, setup.vocabulary, setup.perception, setup.applied, scenes, pooling=pooling
     )
     return eq_6
+
+
+def in_context_log(setup: RecognitionSetup) -> np.ndarray:
+    """:func:`in_context` with the logarithmic pool instead of Eq. 6's sum (docs/feedback.md, "The hard world")."""
+    return in_context(setup, pooling="log")
 
 
 #: Method name -> function, in the order of Fig. 13's columns.
@@ -111,6 +117,7 @@ METHODS: dict[str, RecognitionMethod] = {
     "perception": perception_only,
     "concept_web": concept_web,
     "in_context": in_context,
+    "in_context_log": in_context_log,
 }
 
 CSV_FIELDS = (
@@ -123,6 +130,7 @@ CSV_FIELDS = (
     "overall_accuracy",
     "predicted_noun",
     "noun_confidence",
+    "true_noun_confidence",
     "predicted_adjectives",
 )
 
@@ -134,10 +142,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="rgng",
         help="how features are clustered into + - * 0 (RGNG as in the paper, or k-means)",
     )
+    parser.add_argument(
+        "--world", choices=WORLDS, default=DEFAULT_WORLD, help="difficulty of the paper world (docs/world.md)"
+    )
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    world = World.paper(seed=args.seed)
+    world = World.paper(seed=args.seed, difficulty=args.world)
     train, test = experiment_objects(world, args.quick)
     features = {
         object_id: recording_features(recording)
@@ -151,7 +162,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     chosen = getattr(args, "prototypes", "rgng")
     setup = make_setup(world, train, test, features, prototypes[chosen])
     probabilities = {name: method(setup) for name, method in METHODS.items()}
-    rows = [accuracy_row(setup.vocabulary, obj, name, p[i]) for name, p in probabilities.items() for i, obj in enumerate(test)]
+    rows = [
+        accuracy_row(setup.vocabulary, obj, name, p[i])
+        for name, p in probabilities.items()
+        for i, obj in enumerate(test)
+    ]
     _write_csv(args.out / "results.csv", rows)
     _plot(args.out / "recognition.png", rows)
     examples = _example_objects(rows, test)
@@ -178,6 +193,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             f"{other}_verb_accuracy": verb_accuracy(prototypes[other], test, features),
         },
         examples=[obj.object_id for obj in examples],
+        world=args.world,
+        noun_confidence=_noun_confidences(rows),
         paper=PAPER,
     )
     return summary
@@ -251,8 +268,24 @@ def accuracy_row(vocabulary: Vocabulary, obj: WorldObject, method: str, probabil
         "overall_accuracy": (noun_right + sum(adjective_right)) / (1 + len(adjective_right)),
         "predicted_noun": noun,
         "noun_confidence": round(confidence, 4),
+        "true_noun_confidence": round(float(probabilities[vocabulary.nouns.index(obj.noun)]), 4),
         "predicted_adjectives": " ".join(f"{name}:{p:.3f}" for name, p in adjectives),
     }
+
+
+def _noun_confidences(rows: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """Per method: the median top-noun confidence, the share of objects below 0.5 (Table VII's
+    perception column has 43 %, 29 %, 26 %), and the mean probability given to the true noun."""
+    out = {}
+    for method in dict.fromkeys(row["method"] for row in rows):
+        chosen = [row for row in rows if row["method"] == method]
+        top = np.array([row["noun_confidence"] for row in chosen])
+        out[method] = {
+            "median_top": float(np.median(top)),
+            "share_top_below_half": float(np.mean(top < 0.5)),
+            "mean_true_noun": float(np.mean([row["true_noun_confidence"] for row in chosen])),
+        }
+    return out
 
 
 def _mean_accuracies(rows: list[dict[str, Any]], method: str) -> dict[str, float]:

@@ -11,7 +11,7 @@ in context (:func:`in_context`). The answers' named probabilities are built here
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TypeVar
 
 import numpy as np
@@ -99,10 +99,16 @@ def in_context(
         seed=seed,
         warm_map=True,  # agreement with the cold path measured in docs/feedback.md
     )
-    return _answered(perception.vocabulary, scene)
+    concepts = perception.vocabulary.concepts
+    objects = [
+        replace(result, in_context=None if obj.in_context is None else _named(concepts, obj.in_context))
+        for result, obj in zip(analysis.objects, scene.objects, strict=True)
+    ]
+    return SceneAnalysis(objects, scene)
 
 
 def _answered(vocabulary: Vocabulary, scene: PerceivedScene) -> SceneAnalysis:
+    """The objects' answers before context: perception (with the names outside the vocabulary) and web by name."""
     concepts = vocabulary.concepts
     objects = [
         ObjectResult(
@@ -110,7 +116,6 @@ def _answered(vocabulary: Vocabulary, scene: PerceivedScene) -> SceneAnalysis:
             active_concepts=list(obj.active_concepts),
             perception={**_named(concepts, obj.evidence.probabilities), **obj.evidence.unseen},
             web=None if obj.web is None else _named(concepts, obj.web.probabilities),
-            in_context=None if obj.in_context is None else _named(concepts, obj.in_context),
         )
         for obj in scene.objects
     ]

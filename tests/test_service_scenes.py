@@ -9,8 +9,8 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 
 from app.schemas.scenes import SceneCreate, SceneRead
-from app.services.perception import SETTLED_WEBS_CACHED, Perception, SettledWebs, analyse_objects
-from core.concept_web import ConceptWeb
+from app.services.perception import SETTLED_WEBS_CACHED, Perception, SceneAnalysis, SettledWebs, analyse_objects
+from core.concept_web import ConceptWeb, WebInference
 from core.world import World
 from storage.database import create_session_makers
 from storage.repositories import incremental_lda as lda_repository
@@ -144,6 +144,12 @@ def test_a_fitted_models_answers_are_stored_exactly_as_their_schema_gives_them(
         assert SceneRead.model_validate_json(response.text).model_dump_json() == response.text
 
 
+def _webs(analysis: SceneAnalysis) -> list[WebInference]:
+    webs = [obj.web for obj in analysis.scene.objects]
+    assert all(web is not None for web in webs)
+    return webs  # type: ignore[return-value]
+
+
 def test_memoised_concept_webs_are_the_webs_a_cold_run_settles() -> None:
     world = World.paper(0)
     web = ConceptWeb.fit(world.vocabulary, [[*obj.concepts, *obj.behaviours] for obj in world.train_objects])
@@ -155,12 +161,13 @@ def test_memoised_concept_webs_are_the_webs_a_cold_run_settles() -> None:
     for objects in scenes:
         memoised = analyse_objects(warm, objects, "m")
         cold = analyse_objects(Perception(world.vocabulary, concept_web=web), objects, "m")
-        assert memoised.objects == cold.objects and np.array_equal(memoised.perceptions, cold.perceptions)
-        for a, b in zip(memoised.settled, cold.settled, strict=True):
+        assert memoised.objects == cold.objects
+        assert np.array_equal(memoised.scene.perceptions, cold.scene.perceptions)
+        for a, b in zip(_webs(memoised), _webs(cold), strict=True):
             assert np.array_equal(a.probabilities, b.probabilities)
             assert np.array_equal(a.map_configuration, b.map_configuration)
             assert (a.iterations, a.converged) == (b.iterations, b.converged)
     small = SettledWebs(capacity=2)
     for key in (b"a", b"b", b"a", b"c"):
-        small.put(key, memoised.settled[0])
+        small.put(key, _webs(memoised)[0])
     assert small.get(b"b") is None and small.get(b"a") is not None and small.get(b"c") is not None

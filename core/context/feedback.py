@@ -21,10 +21,7 @@ context agree (docs/feedback.md gives the reasons at length):
 
 The document holds the MAP concepts that carry evidence: the noun, the
 adjectives and the verbs whose behaviour was applied (``applied``; every verb
-when it is None). A verb that was not applied is only the web's prediction of an
-affordance from the noun; counting it would repeat the noun's vote once per
-predicted behaviour (a box-like object would add 13 verbs against a cup's 5) and
-let one misperceived object outvote the rest of the scene.
+when it is None), by the one rule of ``core.concept_web.active`` (which says why).
 
 P(c) in Eq. 6 stays the web of step 1, settled on the perception: updating the
 web's own output again and again would count its clique evidence at every turn
@@ -81,6 +78,7 @@ from typing import Any
 import numpy as np
 
 from core.concept_web import ConceptWeb, WebInference
+from core.concept_web.active import active_concepts, carries_evidence
 from core.context.incremental import IncrementalLDA
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary
@@ -298,9 +296,8 @@ def contextual_feedback(
     plain = _marginals(settled)
     # Warm max-product passes need step 1's max-product messages; without them the whole loop runs cold.
     warm_map = warm_map and all(inference.max_messages is not None for inference in settled)
-    evidence = np.ones(perceptions.shape, dtype=bool)
-    if applied is not None:
-        evidence[:, len(vocabulary.nouns) + len(vocabulary.adjectives) :] = np.asarray(applied, dtype=bool)
+    every_verb = np.ones((len(perceptions), len(vocabulary.verbs)), dtype=bool)
+    evidence = carries_evidence(vocabulary, every_verb if applied is None else applied)
     fold_in = _FoldIn(context_model, vocabulary, seed)
     document = _document(settled, evidence)
     theta = fold_in(document)
@@ -463,7 +460,7 @@ def _marginals(settled: Sequence[WebInference]) -> np.ndarray:
 def _document(settled: Sequence[WebInference], evidence: np.ndarray) -> np.ndarray:
     """Each object's words of the scene's LDA document (Table V) as a (n_objects, n_concepts) mask:
     its MAP concepts that carry evidence."""
-    return np.array([inference.map_configuration for inference in settled]) & evidence
+    return active_concepts(np.array([inference.map_configuration for inference in settled]), evidence)
 
 
 def _words(document: np.ndarray, vocabulary: Vocabulary) -> list[str]:

@@ -96,7 +96,7 @@ def _show_prototypes(args: argparse.Namespace) -> int:
     from core.experiments.context_scenes import object_features
     from core.experiments.recognition import training_data
     from core.prototypes import fit_prototypes, format_prototype_table
-    from core.world import World
+    from sim.world import World
 
     world = World.paper(seed=args.seed)
     features = object_features(world, world.train_objects, args.seed)

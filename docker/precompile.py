@@ -28,7 +28,7 @@ from fastapi.testclient import TestClient
 from app.main import create_app
 from app.settings import Settings
 from bridge.simulate import scene_objects, training_object
-from core.world import World
+from sim.world import World
 
 #: Scenes per level: enough for the growth checks to run.
 SCENES_PER_LEVEL = 4

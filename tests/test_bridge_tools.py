@@ -18,7 +18,7 @@ from app.schemas.training import TrainingBatchCreate as ServiceTrainingBatch
 from bridge import Client, RetryPolicy, replay, simulate
 from bridge.models import ModelCreate, PlanCreate, SceneCreate, TrainingBatch, TrainingObject, Vocabulary
 from core.errors import InvalidInputError
-from core.world import World, WorldConfig
+from sim.world import World, WorldConfig
 
 
 @pytest.fixture(scope="module")

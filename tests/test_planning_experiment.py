@@ -13,7 +13,7 @@ import pytest
 from core.errors import InvalidInputError
 from core.experiments import planning
 from core.planning import MODES, PRUNING_THRESHOLD, Workspace, prune_behaviours
-from core.world import World
+from sim.world import World
 from tests.test_planning_effects import synthetic_effects
 
 

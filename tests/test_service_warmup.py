@@ -23,7 +23,7 @@ import numba
 import numpy as np
 from fastapi.testclient import TestClient
 from app.main import create_app
-from core.world import World
+from sim.world import World
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, make_settings, synthetic_training_objects
 
 

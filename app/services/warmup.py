@@ -44,7 +44,7 @@ from core.context.feedback import PAPER_SIGMA
 from core.context.incremental import IncrementalLDA
 from core.features.layout import EFFECT_SIZE, ENTITY_SIZE
 from core.prototypes.prototypes import fit_prototypes
-from core.world import World
+from sim.world import World
 
 logger = logging.getLogger("contextweb")
 

@@ -58,7 +58,7 @@ from core.experiments import context_scenes
 from core.experiments.recognition import RecognitionSetup
 from core.experiments.sigma import fitted_setup
 from core.prototypes import perceive
-from core.world import Scene, World, WorldObject
+from sim.world import Scene, World, WorldObject
 
 SCENE_COUNTS = (1, 3, 5, 10, 20, 50)
 BIN_COUNTS = (2, 5, 10, 20, 50)

@@ -2,7 +2,7 @@
 
 Protocol:
 
-1. The paper world (core.world) is recorded; every object's entity vector e and
+1. The paper world (sim.world) is recorded; every object's entity vector e and
    the effect vector f of each applied behaviour are extracted
    (core.features.recording_features).
 2. Prototypes (Appendix) are fitted on the 45 training objects: nouns and
@@ -51,7 +51,7 @@ from core.prototypes import PrototypeSet, fit_prototypes, perceive
 from core.prototypes.prototypes import IRRELEVANT
 from core.prototypes.prototypes import METHODS as PROTOTYPE_METHODS
 from core.vocabulary import Vocabulary
-from core.world import World, WorldObject
+from sim.world import World, WorldObject
 
 #: Random stream of the in-context method's context model and scenes, derived from the world seed.
 _IN_CONTEXT_STREAM = 7

@@ -16,7 +16,7 @@ experiment's summary:
   the page is still written and :attr:`ReportResult.ok` is false.
 
 The paper's numbers are the ``PAPER_*`` constants below (or, for Table VI, the
-data of ``core.world.table_vi_scenes`` carried in the summary); the criteria's
+data of ``sim.world.table_vi_scenes`` carried in the summary); the criteria's
 own thresholds are the ``*_TOLERANCE``-style constants, each with its reason.
 """
 
@@ -45,7 +45,7 @@ from core.context import IncrementalLDA
 from core.errors import InvalidInputError
 from core.paper_timings import CONTEXT_DETECTION_MS, WEB_CONVERGENCE_MS
 from core.vocabulary import paper_vocabulary
-from core.world import WorldConfig, generate_scenes, make_objects, table_vi_scenes
+from sim.world import WorldConfig, generate_scenes, make_objects, table_vi_scenes
 
 # --- The paper's numbers --------------------------------------------------------------------------
 

@@ -21,8 +21,9 @@ import numpy as np
 
 from core.errors import InvalidInputError
 from core.payloads import ObjectRecording
-from core.sensors import PRIMITIVES, BehaviourEffect, ObjectBody, make_body, record_object
-from core.vocabulary import Vocabulary, load_world_file
+from core.vocabulary import Vocabulary
+from sim.data import load_world_file
+from sim.sensors import PRIMITIVES, BehaviourEffect, ObjectBody, make_body, record_object
 
 TRAIN = "train"
 TEST = "test"

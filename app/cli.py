@@ -17,7 +17,7 @@ from pydantic import ValidationError
 
 
 def _build_experiment(parser: argparse.ArgumentParser) -> None:
-    from core.experiments import EXPERIMENTS
+    from experiments import EXPERIMENTS
 
     names = parser.add_subparsers(dest="experiment", required=True, metavar="NAME")
     for name, module_path in EXPERIMENTS.items():
@@ -78,7 +78,7 @@ def _build_keys(parser: argparse.ArgumentParser) -> None:
 
 
 def _build_report(parser: argparse.ArgumentParser) -> None:
-    from core.experiments import report
+    from experiments import report
 
     report.add_arguments(parser)
     parser.set_defaults(handler=report.run)
@@ -93,9 +93,9 @@ def _build_prototypes(parser: argparse.ArgumentParser) -> None:
 
 
 def _show_prototypes(args: argparse.Namespace) -> int:
-    from core.experiments.context_scenes import object_features
-    from core.experiments.recognition import training_data
     from core.prototypes import fit_prototypes, format_prototype_table
+    from experiments.context_scenes import object_features
+    from experiments.recognition import training_data
     from sim.world import World
 
     world = World.paper(seed=args.seed)

@@ -12,7 +12,7 @@ import pytest
 from core.context import IncrementalLDA, LDAState
 from core.context import _gibbs_kernels as kernels
 from core.errors import InvalidInputError
-from core.experiments import contexts, convergence, mixed
+from experiments import contexts, convergence, mixed
 from sim.world import WorldConfig, generate_scenes
 
 

@@ -1,4 +1,4 @@
-"""The report's verdicts (core.experiments.report), computed from hand-made summaries."""
+"""The report's verdicts (experiments.report), computed from hand-made summaries."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from typing import Any
 
 import pytest
 
-from core.experiments import report
-from core.experiments.report import Status, Verdict
+from experiments import report
+from experiments.report import Status, Verdict
 
 
 def _sigma(best: float) -> dict[str, Any]:

@@ -19,7 +19,7 @@ from storage.migrations import SchemaNotAtHead
 
 
 def _build_experiment(parser: argparse.ArgumentParser) -> None:
-    from core.experiments import EXPERIMENTS
+    from experiments import EXPERIMENTS
 
     names = parser.add_subparsers(dest="experiment", required=True, metavar="NAME")
     for name, module_path in EXPERIMENTS.items():
@@ -61,10 +61,30 @@ def _build_migrate(parser: argparse.ArgumentParser) -> None:
 def _build_bridge(parser: argparse.ArgumentParser) -> None:
     tools = parser.add_subparsers(dest="tool", required=True, metavar="TOOL")
     for name in ("simulate", "replay"):
-        module = importlib.import_module(f"bridge.tools.{name}")
+        try:
+            module = importlib.import_module(f"bridge.tools.{name}")
+        except ModuleNotFoundError as missing:  # simulate needs the `experiments` extra (tqdm); replay does not
+            tool = tools.add_parser(name, help=f"unavailable: {missing}", add_help=False)
+            tool.add_argument("arguments", nargs=argparse.REMAINDER)
+            tool.set_defaults(handler=_missing_extra(f"bridge {name}", missing))
+            continue
         tool = tools.add_parser(name, help=(module.__doc__ or name).strip().splitlines()[0])
         module.add_arguments(tool)
         tool.set_defaults(handler=module.run)
+
+
+def _missing_extra(command: str, missing: ModuleNotFoundError) -> Callable[[argparse.Namespace], int]:
+    """A handler that says which optional dependency a command needs, instead of a traceback."""
+
+    def handler(_: argparse.Namespace) -> int:
+        print(
+            f"contextweb {command}: {missing.name} is not installed; "
+            "install it with: pip install 'contextweb[experiments]'",
+            file=sys.stderr,
+        )
+        return 69
+
+    return handler
 
 
 def _build_models(parser: argparse.ArgumentParser) -> None:
@@ -80,7 +100,7 @@ def _build_keys(parser: argparse.ArgumentParser) -> None:
 
 
 def _build_report(parser: argparse.ArgumentParser) -> None:
-    from core.experiments import report
+    from experiments import report
 
     report.add_arguments(parser)
     parser.set_defaults(handler=report.run)
@@ -95,10 +115,10 @@ def _build_prototypes(parser: argparse.ArgumentParser) -> None:
 
 
 def _show_prototypes(args: argparse.Namespace) -> int:
-    from core.experiments.context_scenes import object_features
-    from core.experiments.recognition import training_data
     from core.prototypes import fit_prototypes, format_prototype_table
-    from core.world import World
+    from experiments.context_scenes import object_features
+    from experiments.recognition import training_data
+    from sim.world import World
 
     world = World.paper(seed=args.seed)
     features = object_features(world, world.train_objects, args.seed)

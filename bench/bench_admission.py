@@ -53,7 +53,7 @@ from bench.bench_service import (
     training_objects,
 )
 from core.payloads import ObjectRecording
-from core.world import World
+from sim.world import World
 
 HAMMERS = 20
 GOALS = {"p50_ratio": 2.0, "p99_ratio": 3.0}

@@ -1,7 +1,7 @@
 """Speed of the concept web (``python -m bench.bench_concept_web [--quick]``).
 
 The web is the paper's: 29 concepts over 19 variables, learned from the 45
-training objects of Tables I–II (``core.world``). Perceptions are noisy readings
+training objects of Tables I–II (``sim.world``). Perceptions are noisy readings
 of the 60 objects (truth 0.8, rest 0.2, Gaussian noise 0.1, every behaviour
 applied), so that our loopy BP and the reference solve the very same MRF.
 
@@ -34,7 +34,7 @@ from core.concept_web import ConceptWeb
 from core.concept_web.reference import exact_variable_marginals, pgmpy_network
 from core.paper_timings import WEB_CONVERGENCE_MS
 from core.vocabulary import paper_vocabulary
-from core.world import TRAIN, WorldConfig, make_objects
+from sim.world import TRAIN, WorldConfig, make_objects
 
 PAPER_MILLISECONDS = WEB_CONVERGENCE_MS[0]
 

@@ -47,7 +47,7 @@ from bench import RESULTS
 from core.context import IncrementalLDA, LDAState
 from core.context.lda import SWEEP_KERNELS, sweep_kernel
 from core.paper_timings import CONTEXT_DETECTION_MS
-from core.world import WorldConfig, generate_scenes
+from sim.world import WorldConfig, generate_scenes
 
 PAPER_DETECTION_MS = CONTEXT_DETECTION_MS[0]
 ALPHA, XI = 0.1, 0.1

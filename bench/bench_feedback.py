@@ -37,7 +37,7 @@ from core.concept_web import ConceptWeb
 from core.context import IncrementalLDA
 from core.context.feedback import contextual_feedback
 from core.paper_timings import CONTEXT_DETECTION_MS, WEB_CONVERGENCE_MS
-from core.world import World
+from sim.world import World
 
 PAPER_CONTEXT_MS = CONTEXT_DETECTION_MS[0]
 PAPER_WEB_MS = WEB_CONVERGENCE_MS[0]

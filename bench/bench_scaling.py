@@ -66,7 +66,7 @@ from bench.bench_service import (
     training_objects,
 )
 from core.features.extract import recording_features
-from core.world import World
+from sim.world import World
 
 GOALS = {"ratio": 1.6, "scenes_per_second": 500.0}
 PREVIOUS_LATENCY_MS = {"sqlite": (2.1, 7.5), "postgresql": (4.1, 8.5)}

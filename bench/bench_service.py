@@ -68,7 +68,7 @@ from core.context.incremental import IncrementalLDA
 from core.features.extract import recording_features
 from core.payloads import Interaction, ObjectRecording, PointCloud
 from core.prototypes.prototypes import fit_prototypes
-from core.world import World, WorldObject
+from sim.world import World, WorldObject
 
 PROJECT = Path(__file__).resolve().parents[1]
 POSTGRES_SERVER = os.environ.get("CONTEXTWEB_BENCH_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432")

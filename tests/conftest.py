@@ -25,7 +25,7 @@ from app.main import create_app
 from app.services.warmup import warm_up_kernels
 from app.settings import Settings
 from core.features.layout import EFFECT_LAYOUT, EFFECT_SIZE, ENTITY_SIZE
-from core.world import World
+from sim.world import World
 from storage.database import create_database_engine
 from storage.migrations import upgrade_to_head
 from storage.models import Base

@@ -11,7 +11,7 @@ import pytest
 
 from core.concept_web import ConceptWeb
 from core.context import IncrementalLDA
-from core.world import World
+from sim.world import World
 
 
 @pytest.fixture(scope="module")

@@ -36,7 +36,7 @@ from bridge.tools.mapping import AudioStream, Haptics, Proprioception, parse_map
 from bridge.tools.segments import plan_from_markers, plan_from_windows
 from core.errors import InvalidInputError
 from core.payloads import Interaction, ObjectRecording, PointCloud
-from core.world import World, WorldConfig
+from sim.world import World, WorldConfig
 from tests.conftest import make_settings, migrated_database, synthetic_training_objects
 
 START = 1_700_000_000 * 1_000_000_000

@@ -19,7 +19,7 @@ from bridge import Client, RetryPolicy
 from bridge.tools import replay, simulate
 from bridge.models import ModelCreate, PlanCreate, SceneCreate, TrainingBatch, TrainingObject, Vocabulary
 from core.errors import InvalidInputError
-from core.world import World, WorldConfig
+from sim.world import World, WorldConfig
 
 
 @pytest.fixture(scope="module")

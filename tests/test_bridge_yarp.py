@@ -16,7 +16,7 @@ from bridge.tools.segments import finger_series
 from bridge.tools.yarp import YarpSession, is_yarp_session, read_port_log, replay_yarp
 from core.errors import InvalidInputError
 from core.payloads import ObjectRecording
-from core.world import World
+from sim.world import World
 from tests.test_bridge_bags import _bridge, _fitted_model, _scene_count, _small, service, world  # noqa: F401
 
 START = 1_700_000_000.0

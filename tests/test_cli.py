@@ -24,7 +24,7 @@ def test_help_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:
 def test_serving_does_not_import_the_experiments() -> None:
     code = (
         "import sys; from app.cli import build_parser; build_parser('serve');"
-        "print(sorted(m for m in ('matplotlib', 'core.experiments.recognition', 'core.context') if m in sys.modules))"
+        "print(sorted(m for m in ('matplotlib', 'experiments.recognition', 'core.context') if m in sys.modules))"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert result.stdout.strip() == "[]"

@@ -11,7 +11,7 @@ from core.concept_web import ConceptWeb
 from core.concept_web.web import DEFAULT_BETA, DEFAULT_PSEUDO_COUNT
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary, paper_vocabulary
-from core.world import WorldConfig, make_objects
+from sim.world import WorldConfig, make_objects
 
 SMALL = Vocabulary(("box", "cup"), (("hard", "soft"),), ("push", "grasp"))
 #: box/soft/push+grasp ×3, box/hard/push ×1, cup/hard/grasp ×4.

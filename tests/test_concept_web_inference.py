@@ -11,7 +11,7 @@ from core.concept_web import ConceptWeb, WebPotentials, loopy_belief_propagation
 from core.concept_web.reference import exact_probabilities, exact_variable_marginals
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary, paper_vocabulary
-from core.world import TRAIN, WorldConfig, make_objects
+from sim.world import TRAIN, WorldConfig, make_objects
 
 PAPER = paper_vocabulary()
 NO_VERB_APPLIED = np.zeros(len(PAPER.verbs), dtype=bool)

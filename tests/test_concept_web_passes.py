@@ -11,7 +11,7 @@ import pytest
 from core.concept_web import ConceptWeb, loopy_belief_propagation
 from core.errors import InvalidInputError
 from core.vocabulary import paper_vocabulary
-from core.world import TRAIN, WorldConfig, make_objects
+from sim.world import TRAIN, WorldConfig, make_objects
 
 PAPER = paper_vocabulary()
 TRAINING = [[*o.concepts, *o.behaviours] for o in make_objects(WorldConfig.paper(), seed=0) if o.split == TRAIN]

@@ -12,8 +12,8 @@ import pytest
 from core.context import IncrementalLDA, LDAState
 from core.context import _gibbs_kernels as kernels
 from core.errors import InvalidInputError
-from core.experiments import contexts, convergence, mixed
-from core.world import WorldConfig, generate_scenes
+from experiments import contexts, convergence, mixed
+from sim.world import WorldConfig, generate_scenes
 
 
 def _run(module: object, out: Path, argv: tuple[str, ...] = ()) -> dict:

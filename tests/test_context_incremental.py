@@ -10,7 +10,7 @@ import pytest
 
 from core.context import ContextModelState, IncrementalLDA, SceneUpdate
 from core.errors import InvalidInputError
-from core.world import WorldConfig, generate_scenes
+from sim.world import WorldConfig, generate_scenes
 
 # Online tests use a small window so that growth checks stay cheap.
 ONLINE = {"birth_window": 40, "birth_check_interval": 10}

@@ -10,7 +10,7 @@ from scipy.special import gammaln
 
 from core.context import IncrementalLDA, LDAState
 from core.context.scene_partition import SceneBlocks, best_partition, corpus_centred_prior, partition_evidence
-from core.world import WorldConfig, generate_scenes
+from sim.world import WorldConfig, generate_scenes
 
 
 def _blocks(n_scenes: int, seed: int, base_contexts: int = 0) -> tuple[SceneBlocks, np.ndarray, list[str]]:

@@ -20,7 +20,7 @@ import pytest
 
 from bridge import Client
 from bridge.tools.simulate import simulate, train
-from core.world import World, WorldConfig
+from sim.world import World, WorldConfig
 from tests.test_bridge_live import READ_KEY, WRITE_KEY, ServiceProcess
 
 CHROMIUM = os.environ.get("CONTEXTWEB_CHROMIUM", "/usr/bin/chromium")

@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from core.experiments import noise, raw_vs_web, recognition, sigma
 from core.vocabulary import paper_vocabulary
+from experiments import noise, raw_vs_web, recognition, sigma
 
 
 def run_quick(module: ModuleType, out: Path) -> dict[str, Any]:

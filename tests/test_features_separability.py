@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from core.features.extract import entity_features
-from core.world import World
+from sim.world import World
 
 pytestmark = pytest.mark.slow
 

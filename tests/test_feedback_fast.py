@@ -14,7 +14,7 @@ from core.context import IncrementalLDA, feedback
 from core.context.feedback import _FoldIn, _words, context_concepts, contextual_feedback
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary
-from core.world import World
+from sim.world import World
 from tests.paper_feedback import context_model, web, world  # noqa: F401 (fixtures)
 
 FIELDS = ("perception", "web", "in_context", "context_posterior", "context_concepts")

@@ -10,7 +10,7 @@ from core.context import IncrementalLDA, feedback
 from core.context.feedback import context_concepts, contextual_feedback
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary
-from core.world import World, WorldObject
+from sim.world import World, WorldObject
 from tests.paper_feedback import context_model, web, world  # noqa: F401 (fixtures)
 
 TRUTH = 0.8

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from core.experiments import recognition
+from experiments import recognition
 
 EXTRA = "perception_copy"
 

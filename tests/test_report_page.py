@@ -1,4 +1,4 @@
-"""The report page (core.experiments.report): a --quick run of the planning experiment, a failing one.
+"""The report page (experiments.report): a --quick run of the planning experiment, a failing one.
 
 This module doubles as the failing experiment: registered as ``broken``, its
 :func:`run` raises as an experiment's bug would.
@@ -14,10 +14,10 @@ from pathlib import Path
 
 import pytest
 
+import experiments
 from app.cli import main
-from core import experiments
 from core.errors import InvalidInputError
-from core.experiments import report
+from experiments import report
 
 BROKEN = "broken"
 

@@ -1,4 +1,4 @@
-"""The report's verdicts (core.experiments.report), computed from hand-made summaries."""
+"""The report's verdicts (experiments.report.claims), computed from hand-made summaries."""
 
 from __future__ import annotations
 
@@ -8,8 +8,19 @@ from typing import Any
 
 import pytest
 
-from core.experiments import report
-from core.experiments.report import Status, Verdict
+from experiments.report import Status, Verdict
+from experiments.report.claims import (
+    fig_9,
+    fig_10,
+    fig_11,
+    fig_12,
+    fig_13,
+    fig_14,
+    fig_15,
+    fig_16,
+    running_times,
+    table_vi,
+)
 
 
 def _sigma(best: float) -> dict[str, Any]:
@@ -19,12 +30,12 @@ def _sigma(best: float) -> dict[str, Any]:
 
 
 def test_fig_9_reproduced_inside_the_papers_interval_else_names_the_measured_sigma() -> None:
-    assert report.judge_fig_9(_sigma(0.4)).status is Status.REPRODUCED
-    assert report.judge_fig_9(_sigma(0.5)).status is Status.REPRODUCED
-    verdict = report.judge_fig_9(_sigma(0.8))
+    assert fig_9.judge(_sigma(0.4)).status is Status.REPRODUCED
+    assert fig_9.judge(_sigma(0.5)).status is Status.REPRODUCED
+    verdict = fig_9.judge(_sigma(0.8))
     assert verdict.status is Status.NOT_REPRODUCED
     assert "σ = 0.8" in verdict.reason and "concept web" in verdict.reason and "95%" in verdict.reason
-    assert "the context" in report.judge_fig_9(_sigma(0.2)).reason
+    assert "the context" in fig_9.judge(_sigma(0.2)).reason
 
 
 def _mixed(kitchen_share: float) -> dict[str, Any]:
@@ -44,9 +55,9 @@ def _mixed(kitchen_share: float) -> dict[str, Any]:
 
 
 def test_table_vi_checks_every_proportion_against_the_truth_with_the_tolerance() -> None:
-    assert report.judge_table_vi(_mixed(0.4)).status is Status.REPRODUCED  # within 0.15, error above the paper's
-    assert report.judge_table_vi(_mixed(0.49)).status is Status.BETTER  # also below the paper's mean |error|
-    verdict = report.judge_table_vi(_mixed(0.3))
+    assert table_vi.judge(_mixed(0.4)).status is Status.REPRODUCED  # within 0.15, error above the paper's
+    assert table_vi.judge(_mixed(0.49)).status is Status.BETTER  # also below the paper's mean |error|
+    verdict = table_vi.judge(_mixed(0.3))
     assert verdict.status is Status.NOT_REPRODUCED
     assert "kitchen+workshop / kitchen: 0.30" in verdict.reason and "0.37 by tokens" in verdict.reason
 
@@ -59,8 +70,8 @@ def _recognition(perception: float, web: float, context: float) -> dict[str, Any
 
 
 def test_fig_13_needs_perception_le_web_le_context() -> None:
-    assert report.judge_fig_13(_recognition(0.8, 0.85, 0.9)).status is Status.REPRODUCED
-    verdict = report.judge_fig_13(_recognition(0.8, 0.9, 0.85))
+    assert fig_13.judge(_recognition(0.8, 0.85, 0.9)).status is Status.REPRODUCED
+    verdict = fig_13.judge(_recognition(0.8, 0.9, 0.85))
     assert verdict.status is Status.NOT_REPRODUCED
     assert verdict.reason == "concept web 0.900 > in context 0.850"
 
@@ -75,8 +86,8 @@ def _noise(in_context_at_half: list[float]) -> dict[str, Any]:
 
 
 def test_fig_14_compares_at_the_papers_sigma_at_every_noise_level() -> None:
-    assert report.judge_fig_14(_noise([0.9, 0.6, 0.3])).status is Status.REPRODUCED
-    verdict = report.judge_fig_14(_noise([0.9, 0.6, 0.1]))
+    assert fig_14.judge(_noise([0.9, 0.6, 0.3])).status is Status.REPRODUCED
+    verdict = fig_14.judge(_noise([0.9, 0.6, 0.1]))
     assert verdict.status is Status.NOT_REPRODUCED
     assert "noise 90% (0.100 vs 0.200)" in verdict.reason and "10%" not in verdict.reason
 
@@ -85,7 +96,7 @@ def _planning(kitchen: float, playroom: float, workshop: float, counts: tuple[in
     reductions = {"kitchen": kitchen, "playroom": playroom, "workshop": workshop}
     return {
         "scenarios": 100,
-        "fig_15_paper_counts": dict(zip(report.PAPER_FIG_15_NODES, counts, strict=True)),
+        "fig_15_paper_counts": dict(zip(fig_15.PAPER_FIG_15_NODES, counts, strict=True)),
         "median_nodes": {
             "paper": {c: {"unpruned": 100.0, "pruned": 100.0 * (1 - r), "reduction": r} for c, r in reductions.items()}
         },
@@ -94,11 +105,11 @@ def _planning(kitchen: float, playroom: float, workshop: float, counts: tuple[in
 
 def test_figs_15_and_16_canonical_counts_and_pruning_order() -> None:
     paper = _planning(0.8, 0.5, 0.0, (2380, 156, 820))
-    assert report.judge_fig_15(paper).status is Status.REPRODUCED
-    assert report.judge_fig_16(paper).status is Status.REPRODUCED
-    assert report.judge_fig_15(_planning(0.8, 0.5, 0.0, (2380, 157, 820))).status is Status.NOT_REPRODUCED
-    assert report.judge_fig_16(_planning(0.5, 0.8, 0.0, (2380, 156, 820))).status is Status.NOT_REPRODUCED
-    assert report.judge_fig_16(_planning(0.8, 0.5, 0.1, (2380, 156, 820))).status is Status.NOT_REPRODUCED
+    assert fig_15.judge(paper).status is Status.REPRODUCED
+    assert fig_16.judge(paper).status is Status.REPRODUCED
+    assert fig_15.judge(_planning(0.8, 0.5, 0.0, (2380, 157, 820))).status is Status.NOT_REPRODUCED
+    assert fig_16.judge(_planning(0.5, 0.8, 0.0, (2380, 156, 820))).status is Status.NOT_REPRODUCED
+    assert fig_16.judge(_planning(0.8, 0.5, 0.1, (2380, 156, 820))).status is Status.NOT_REPRODUCED
 
 
 def _raw_vs_web(web: int | None, raw: int | None, worst: float) -> dict[str, Any]:
@@ -109,12 +120,12 @@ def _raw_vs_web(web: int | None, raw: int | None, worst: float) -> dict[str, Any
 
 
 def test_fig_12_web_above_half_by_five_scenes_before_raw_and_robust_on_the_grid() -> None:
-    assert report.judge_fig_12(_raw_vs_web(5, 50, 0.6)).status is Status.REPRODUCED
-    assert report.judge_fig_12(_raw_vs_web(1, 50, 0.6)).status is Status.BETTER
-    assert report.judge_fig_12(_raw_vs_web(10, 50, 0.6)).status is Status.NOT_REPRODUCED
-    assert report.judge_fig_12(_raw_vs_web(5, 5, 0.6)).status is Status.NOT_REPRODUCED
-    assert report.judge_fig_12(_raw_vs_web(3, None, 0.45)).status is Status.NOT_REPRODUCED
-    assert report.judge_fig_12(_raw_vs_web(None, None, 0.6)).status is Status.NOT_REPRODUCED
+    assert fig_12.judge(_raw_vs_web(5, 50, 0.6)).status is Status.REPRODUCED
+    assert fig_12.judge(_raw_vs_web(1, 50, 0.6)).status is Status.BETTER
+    assert fig_12.judge(_raw_vs_web(10, 50, 0.6)).status is Status.NOT_REPRODUCED
+    assert fig_12.judge(_raw_vs_web(5, 5, 0.6)).status is Status.NOT_REPRODUCED
+    assert fig_12.judge(_raw_vs_web(3, None, 0.45)).status is Status.NOT_REPRODUCED
+    assert fig_12.judge(_raw_vs_web(None, None, 0.6)).status is Status.NOT_REPRODUCED
 
 
 def _contexts(found_at_20: list[int], k_of_min_entropy: int = 3, c_low_at_3: float = 0.0) -> dict[str, Any]:
@@ -134,8 +145,8 @@ def _contexts(found_at_20: list[int], k_of_min_entropy: int = 3, c_low_at_3: flo
 
 
 def test_fig_11_growth_must_stop_at_the_contexts_present_in_nine_of_ten_test_sets() -> None:
-    assert report.judge_fig_11_stop(_contexts([3] * 9 + [4])).status is Status.REPRODUCED
-    verdict = report.judge_fig_11_stop(_contexts([3] * 8 + [2, 4]))
+    assert fig_11.judge_stop(_contexts([3] * 9 + [4])).status is Status.REPRODUCED
+    verdict = fig_11.judge_stop(_contexts([3] * 8 + [2, 4]))
     assert verdict.status is Status.NOT_REPRODUCED
     assert "8/10 test sets at |D| = 20" in verdict.reason and "|D| = 20: 0/10" in verdict.reason
     assert "|D| = 1" not in verdict.reason
@@ -144,21 +155,21 @@ def test_fig_11_growth_must_stop_at_the_contexts_present_in_nine_of_ten_test_set
 def test_fig_11_growth_must_also_stop_at_three_where_every_context_is_present() -> None:
     summary = _contexts([3] * 10)
     summary["stop_k"]["paper-all@20"] = {"present": [3] * 10, "scenes": [3] * 8 + [2, 2], "paper": [6] * 10}
-    verdict = report.judge_fig_11_stop(summary)
+    verdict = fig_11.judge_stop(summary)
     assert verdict.status is Status.NOT_REPRODUCED
     assert "8/10 test sets at |D| = 20 (every context present)" in verdict.reason
     summary["stop_k"]["paper-all@20"]["scenes"] = [3] * 9 + [2]
-    assert report.judge_fig_11_stop(summary).status is Status.REPRODUCED
+    assert fig_11.judge_stop(summary).status is Status.REPRODUCED
 
 
 def test_fig_11_curves_need_no_uncertain_concept_and_least_entropy_at_three() -> None:
-    assert report.judge_fig_11_curves(_contexts([3] * 10)).status is Status.REPRODUCED
-    verdict = report.judge_fig_11_curves(_contexts([3] * 10, k_of_min_entropy=2, c_low_at_3=1.5))
+    assert fig_11.judge_curves(_contexts([3] * 10)).status is Status.REPRODUCED
+    verdict = fig_11.judge_curves(_contexts([3] * 10, k_of_min_entropy=2, c_low_at_3=1.5))
     assert verdict.status is Status.NOT_REPRODUCED
     assert verdict.reason == (
         "mean |C_low| at K = 3: 1.5 (|D| = 20); minimum H̃ at K = 2 (|D| = 20: 0.800 vs 0.700 nats at K = 3)"
     )
-    only_entropy = report.judge_fig_11_curves(_contexts([3] * 10, k_of_min_entropy=2))
+    only_entropy = fig_11.judge_curves(_contexts([3] * 10, k_of_min_entropy=2))
     assert only_entropy.reason.startswith("minimum H̃ at K = 2")
 
 
@@ -176,11 +187,11 @@ def _convergence(incremental: float | None, batch: float | None, final_gap: floa
 
 
 def test_fig_10_incremental_converges_faster_to_the_same_entropy() -> None:
-    assert report.judge_fig_10(_convergence(10.0, 20.0, 0.01)).status is Status.REPRODUCED
-    assert report.judge_fig_10(_convergence(10.0, None, 0.01)).status is Status.REPRODUCED
-    assert report.judge_fig_10(_convergence(30.0, 20.0, 0.01)).status is Status.NOT_REPRODUCED
-    assert report.judge_fig_10(_convergence(10.0, 20.0, 0.2)).status is Status.NOT_REPRODUCED
-    stuck = report.judge_fig_10(_convergence(None, 20.0, 0.2))
+    assert fig_10.judge(_convergence(10.0, 20.0, 0.01)).status is Status.REPRODUCED
+    assert fig_10.judge(_convergence(10.0, None, 0.01)).status is Status.REPRODUCED
+    assert fig_10.judge(_convergence(30.0, 20.0, 0.01)).status is Status.NOT_REPRODUCED
+    assert fig_10.judge(_convergence(10.0, 20.0, 0.2)).status is Status.NOT_REPRODUCED
+    stuck = fig_10.judge(_convergence(None, 20.0, 0.2))
     assert stuck.status is Status.NOT_REPRODUCED
     assert "k incremental c low: converged in 0/10 runs, median — sweeps" in stuck.reason
     assert "k incremental scene: converged in 10/10 runs, median 12 sweeps" in stuck.reason
@@ -192,16 +203,16 @@ def test_fig_10_incremental_converges_faster_to_the_same_entropy() -> None:
 )
 def test_running_times_against_the_papers_mean_and_spread(detection_ms: float, web_ms: float, status: Status) -> None:
     summary = {"context_detection_ms": detection_ms, "web_convergence_ms": web_ms, "source": "test"}
-    assert report.judge_running_times(summary).status is status
+    assert running_times.judge(summary).status is status
 
 
 def test_running_times_come_from_the_benchmarks_when_present(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     measured = {"context_detection_ms": 1.0, "web_convergence_ms": 2.0, "source": "measured"}
-    monkeypatch.setattr(report, "measure_running_times", lambda seed: measured)
-    assert report.running_times(tmp_path, seed=0) is measured
+    monkeypatch.setattr(running_times, "measure_running_times", lambda seed: measured)
+    assert running_times.running_times(tmp_path, seed=0) is measured
     (tmp_path / "context.json").write_text(json.dumps({"detection_5_objects": {"ours_median_us": 70.0}}))
     (tmp_path / "concept_web.json").write_text(json.dumps({"ours_median_us": 200.0}))
-    times = report.running_times(tmp_path, seed=0)
+    times = running_times.running_times(tmp_path, seed=0)
     assert times["context_detection_ms"] == pytest.approx(0.07) and times["web_convergence_ms"] == pytest.approx(0.2)
 
 

@@ -21,7 +21,7 @@ from core.payloads import ObjectRecording
 from core.prototypes import fit_prototypes
 from core.scene import MeasuredObject, NamedObject, Perception, perceive_scene, perceived_concepts
 from core.vocabulary import Vocabulary, paper_vocabulary
-from core.world import World
+from sim.world import World
 
 SEED = 11
 

@@ -11,7 +11,7 @@ from sqlalchemy import Engine
 from app.schemas.scenes import SceneCreate, SceneRead
 from app.services.perception import SETTLED_WEBS_CACHED, Perception, SceneAnalysis, SettledWebs, analyse_objects
 from core.concept_web import ConceptWeb, WebInference
-from core.world import World
+from sim.world import World
 from storage.database import create_session_makers
 from storage.repositories import incremental_lda as lda_repository
 from tests.conftest import CONTEXT_CONCEPTS, concept_scenes, synthetic_training_objects

@@ -30,7 +30,7 @@ from schemathesis.checks import not_a_server_error
 from schemathesis.specs.openapi.checks import response_schema_conformance
 
 from app.main import create_app
-from core.world import World
+from sim.world import World
 from tests.conftest import make_settings, migrated_database, synthetic_training_objects
 
 EXAMPLES_PER_OPERATION = 6

@@ -15,7 +15,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from core.features.layout import EFFECT_SIZE, ENTITY_SIZE
-from core.world import World
+from sim.world import World
 from tests.conftest import synthetic_training_objects
 
 

@@ -4,11 +4,15 @@ or imports a module, and start-up's objects are out of the garbage collector's c
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+
+from app.services.warmup import WARM_UP_FILE
+from sim.record_warmup import render, warm_up_record
 
 PROJECT = Path(__file__).resolve().parents[1]
 
@@ -24,7 +28,7 @@ import numba
 import numpy as np
 from fastapi.testclient import TestClient
 from app.serve import serving_app
-from core.world import World
+from sim.world import World
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, make_settings, synthetic_training_objects
 from tests.servers import migrate
 
@@ -77,3 +81,52 @@ def test_after_start_up_no_request_compiles_or_imports_and_start_up_objects_are_
     assert compiled_by_requests == {}
     assert start_up["imported"] == []  # librosa, e.g., imports its modules lazily on first use
     assert start_up["frozen"] > 0 and start_up["numba_module_frozen"]
+
+
+# The service's own start-up in a fresh interpreter: migrate, then build the app as `contextweb serve`
+# does (serving_app: the warm-up, then create_app) and start it (TestClient runs the lifespan); print
+# every module of the simulator, the experiments and their plotting library that got imported. (tqdm is not checked: librosa's pooch imports it when it
+# is installed, as an optional progress bar, and works without it.)
+_SERVICE_IMPORTS = """
+import json, sys
+from fastapi.testclient import TestClient
+from app.serve import serving_app
+from app.settings import Settings
+from storage.database import create_database_engine
+from storage.migrations import upgrade_to_head
+
+engine = create_database_engine(sys.argv[1])
+upgrade_to_head(engine)  # what `contextweb migrate` does first
+engine.dispose()
+settings = Settings(
+    database_url=sys.argv[1], environment="development", write_key=None, read_key=None, sqlite_synchronous="NORMAL"
+)
+with TestClient(serving_app(settings)) as client:  # warms up, freezes, then create_app, as `serve` does
+    assert client.get("/readyz").status_code == 200
+roots = ("sim", "experiments", "matplotlib")
+print(json.dumps(sorted(name for name in sys.modules if name.split(".")[0] in roots)))
+"""
+
+
+@pytest.mark.slow
+def test_the_service_imports_neither_the_simulator_nor_the_experiments(tmp_path: Path) -> None:
+    env = {name: value for name, value in os.environ.items() if not name.startswith("CONTEXTWEB_")}
+    database = f"sqlite:///{tmp_path / 'service.sqlite3'}"
+    run = subprocess.run(
+        [sys.executable, "-c", _SERVICE_IMPORTS, database],
+        cwd=PROJECT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=280,
+        check=False,
+    )
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert json.loads(run.stdout.strip().splitlines()[-1]) == []
+
+
+def test_the_warm_up_file_is_what_the_simulator_records_for_its_seed() -> None:
+    """The committed file cannot drift from the world: regenerating it gives the same bytes."""
+    committed = WARM_UP_FILE.read_text(encoding="utf-8")
+    assert committed == render(warm_up_record(json.loads(committed)["seed"]))
+    assert render(warm_up_record(1)) != committed  # the seed matters, so the check above is not vacuous

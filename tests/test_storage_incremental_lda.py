@@ -10,7 +10,7 @@ from sqlalchemy import Engine, text
 from sqlalchemy.exc import IntegrityError
 
 from core.context.incremental import IncrementalLDA
-from core.world import World
+from sim.world import World
 from storage.database import create_database_engine, create_session_makers
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import models as model_repository

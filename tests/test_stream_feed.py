@@ -28,7 +28,7 @@ from websockets.sync.client import connect
 
 from app.feed import LISTEN_APPLICATION_NAME, SceneFeed
 from app.main import create_app
-from core.world import World
+from sim.world import World
 from storage.database import create_session_makers
 from storage.repositories import feed as feed_repository
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, make_settings, synthetic_training_objects

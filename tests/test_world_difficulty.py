@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
-from core.experiments import recognition
-from core.experiments.context_scenes import object_features
+from experiments import recognition
+from experiments.context_scenes import object_features
 from core.prototypes import fit_prototypes
-from core.sensors import EASY, Difficulty, make_body
-from core.world import WORLDS, World, WorldConfig
+from sim.sensors import EASY, Difficulty, make_body
+from sim.world import WORLDS, World, WorldConfig
 
 #: Seeds of the calibration checks: three worlds, 45 test objects in all.
 CALIBRATION_SEEDS = (11, 12, 13)

@@ -9,7 +9,7 @@ import pytest
 
 from core.errors import InvalidInputError
 from core.vocabulary import load_world_file
-from core.world import TEST, TRAIN, World, WorldConfig, make_objects
+from sim.world import TEST, TRAIN, World, WorldConfig, make_objects
 
 # Table I of the paper, typed from the text (not read from the world file it checks).
 TABLE_I = {

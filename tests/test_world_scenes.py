@@ -7,7 +7,7 @@ from collections import Counter
 import pytest
 
 from core.errors import InvalidInputError
-from core.world import World, WorldConfig, generate_scenes, scene_from_nouns, table_vi_scenes
+from sim.world import World, WorldConfig, generate_scenes, scene_from_nouns, table_vi_scenes
 
 
 def test_scene_tokens_are_nouns_adjectives_and_applicable_verbs() -> None:

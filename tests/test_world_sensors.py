@@ -7,8 +7,8 @@ import pytest
 
 from core.errors import InvalidInputError
 from core.payloads import ObjectRecording
-from core.sensors import AUDIO_SAMPLE_RATE, FINGER_SAMPLES, MAX_POINTS, MIN_POINTS, BehaviourEffect, make_body
-from core.world import World, WorldConfig, WorldObject
+from sim.sensors import AUDIO_SAMPLE_RATE, FINGER_SAMPLES, MAX_POINTS, MIN_POINTS, BehaviourEffect, make_body
+from sim.world import World, WorldConfig, WorldObject
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,9 @@ small scene of each level (concepts as names and as a probability map, features,
 through the functions a request runs — perception, the concept webs, Eq. 6 feedback, the online
 Incremental-LDA update with its growth checks, fold-in inference — on a throwaway model that is
 never stored. The arrays have the dtypes and layouts of a request's, so the specialisations
-compiled are the ones requests use.
+compiled are the ones requests use. The labels come from a small recorded file
+(``app/data/warmup_scenes.json``, written by ``python -m sim.record_warmup`` from the simulated
+paper world): the service never imports the simulator.
 
 Prototypes are fitted with k-means here, not RGNG: RGNG runs only in ``/fit``, which is no
 latency path, and compiling it would lengthen every cold start.
@@ -31,8 +33,12 @@ from __future__ import annotations
 import base64
 import functools
 import gc
+import json
 import logging
 import time
+from importlib import resources
+from importlib.resources.abc import Traversable
+from typing import Any
 
 import numpy as np
 
@@ -43,12 +49,14 @@ from core.context.feedback import PAPER_SIGMA
 from core.context.incremental import IncrementalLDA
 from core.features.layout import EFFECT_SIZE, ENTITY_SIZE
 from core.prototypes.prototypes import fit_prototypes
-from core.world import World
+from core.vocabulary import Vocabulary
 
 logger = logging.getLogger("contextweb")
 
 #: Scenes learned by the throwaway model: more than one, so that its growth checks run.
 WARM_UP_SCENES = 3
+#: The recorded labels the warm-up replays (``python -m sim.record_warmup`` writes it).
+WARM_UP_FILE: Traversable = resources.files("app") / "data" / "warmup_scenes.json"
 
 
 @functools.cache
@@ -56,10 +64,10 @@ def warm_up_kernels() -> float:
     """Run scenes of every level through a throwaway model, once per process (compiled kernels
     stay in the process: a second app, as in the tests, finds them there); the seconds it took."""
     started = time.perf_counter()
-    world = World.paper(0)
-    perception = _throwaway_perception(world)
-    incremental_lda = IncrementalLDA(world.vocabulary.concepts, seed=0)
-    body = SceneCreate.model_validate(_scene(world))
+    record = json.loads(WARM_UP_FILE.read_text(encoding="utf-8"))
+    perception = _throwaway_perception(record)
+    incremental_lda = IncrementalLDA(perception.vocabulary.concepts, seed=0)
+    body = SceneCreate.model_validate(_scene(record))
     for _ in range(WARM_UP_SCENES):
         analysis = analyse_objects(perception, body.objects, "warm-up")
         analysis = in_context(perception, incremental_lda, analysis, sigma=PAPER_SIGMA, seed=0)
@@ -81,26 +89,29 @@ def freeze_start_up_objects() -> int:
     return frozen
 
 
-def _throwaway_perception(world: World) -> Perception:
-    """Prototypes (k-means, on random vectors) and a concept web fitted on the paper world's labels."""
+def _throwaway_perception(record: dict[str, Any]) -> Perception:
+    """Prototypes (k-means, on random vectors) and a concept web fitted on the recorded labels."""
     rng = np.random.default_rng(0)
-    train = world.train_objects
-    behaviours = [behaviour for obj in train for behaviour in obj.behaviours]
+    vocabulary = Vocabulary.from_dict(record["vocabulary"])
+    train = record["training_objects"]
+    applicable: dict[str, list[str]] = record["behaviours"]
+    behaviours = [behaviour for obj in train for behaviour in applicable[obj["noun"]]]
     prototypes = fit_prototypes(
-        world.vocabulary,
+        vocabulary,
         rng.normal(size=(len(train), ENTITY_SIZE)),
-        [[obj.noun, *obj.adjectives] for obj in train],
+        [[obj["noun"], *obj["adjectives"]] for obj in train],
         rng.normal(size=(len(behaviours), EFFECT_SIZE)),
         behaviours,
         method="kmeans",
     )
-    web = ConceptWeb.fit(world.vocabulary, [[obj.noun, *obj.adjectives, *obj.behaviours] for obj in train])
-    return Perception(world.vocabulary, prototypes, web)
+    web = ConceptWeb.fit(vocabulary, [[obj["noun"], *obj["adjectives"], *applicable[obj["noun"]]] for obj in train])
+    return Perception(vocabulary, prototypes, web)
 
 
-def _scene(world: World) -> dict:
+def _scene(record: dict[str, Any]) -> dict:
     """A scene body with an object at each level (raw clouds small: extraction is not what is warmed)."""
-    obj = world.test_objects[0]
+    obj = record["scene_object"]
+    noun, adjectives, behaviours = obj["noun"], obj["adjectives"], record["behaviours"][obj["noun"]]
     rng = np.random.default_rng(0)
     sphere = rng.normal(size=(200, 3))
     sphere = 0.04 * sphere / np.linalg.norm(sphere, axis=1, keepdims=True) + np.array([0.0, 0.3, 0.04])
@@ -110,8 +121,8 @@ def _scene(world: World) -> dict:
     finger = np.linspace(0.0, 1.0, 50).tolist()
     return {
         "objects": [
-            {"concepts": [obj.noun, *obj.adjectives, *obj.behaviours]},
-            {"concepts": {obj.noun: 0.8, obj.adjectives[0]: 0.6}},
+            {"concepts": [noun, *adjectives, *behaviours]},
+            {"concepts": {noun: 0.8, adjectives[0]: 0.6}},
             {
                 "features": {
                     "entity": rng.normal(size=ENTITY_SIZE).tolist(),

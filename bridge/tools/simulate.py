@@ -9,7 +9,7 @@ bar and a live line with K and the last context posterior.
 Input levels of a scene object:
 
 * ``concepts``: the object's noun, adjectives and applicable verbs (the words a
-  concept web would activate, ``core.world.Scene.tokens``);
+  concept web would activate, ``sim.world.Scene.tokens``);
 * ``features``: its Table III vectors, extracted here from a fresh recording;
 * ``raw``: the fresh recording itself (point clouds, audio, finger series),
   each cloud subsampled to ``--max-points`` so that a scene of five objects
@@ -44,7 +44,7 @@ from bridge.models import (
 )
 from core.features.extract import recording_features
 from core.payloads import ObjectRecording
-from core.world import Scene, World, WorldConfig, WorldObject, generate_scenes
+from sim.world import Scene, World, WorldConfig, WorldObject, generate_scenes
 
 LEVELS = ("concepts", "features", "raw")
 #: Largest body per training request; the service's default limit is 8 MiB.

@@ -23,7 +23,7 @@ The experiments' document of one recorded object (the paper's protocol, Table V)
 >>> from core.concept_web import ConceptWeb
 >>> from core.features import recording_features
 >>> from core.prototypes import fit_prototypes
->>> from core.world import World
+>>> from sim.world import World
 >>> world = World.paper(seed=7)
 >>> train = world.train_objects
 >>> features = [recording_features(world.record(obj, 7)) for obj in train]

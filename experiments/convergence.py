@@ -53,7 +53,7 @@ from scipy.optimize import linear_sum_assignment
 
 from core.context import IncrementalLDA, low_confidence_concepts
 from core.errors import InvalidInputError
-from core.world import WorldConfig, generate_scenes
+from sim.world import WorldConfig, generate_scenes
 
 SOLVERS = (
     "k_incremental_c_low",

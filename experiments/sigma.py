@@ -38,9 +38,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from core.context import IncrementalLDA, average_log_likelihood
-from core.experiments import context_scenes, recognition
 from core.prototypes import fit_prototypes
-from core.world import World
+from experiments import context_scenes, recognition
+from sim.world import World
 
 SIGMAS = tuple(round(0.1 * i, 1) for i in range(11))
 CURVES = ("log_likelihood", "log_likelihood_with_verbs", "log_likelihood_in_context_web", "overall_accuracy")

@@ -12,12 +12,12 @@ from __future__ import annotations
 
 #: Experiment name -> module path. Modules import lazily: numba compiles on first use.
 EXPERIMENTS: dict[str, str] = {
-    "contexts": "core.experiments.contexts",
-    "convergence": "core.experiments.convergence",
-    "mixed": "core.experiments.mixed",
-    "recognition": "core.experiments.recognition",
-    "planning": "core.experiments.planning",
-    "sigma": "core.experiments.sigma",
-    "noise": "core.experiments.noise",
-    "raw-vs-web": "core.experiments.raw_vs_web",
+    "contexts": "experiments.contexts",
+    "convergence": "experiments.convergence",
+    "mixed": "experiments.mixed",
+    "recognition": "experiments.recognition",
+    "planning": "experiments.planning",
+    "sigma": "experiments.sigma",
+    "noise": "experiments.noise",
+    "raw-vs-web": "experiments.raw_vs_web",
 }

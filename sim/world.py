@@ -1,13 +1,13 @@
 """The synthetic iCub world (§II, §V): objects, their labels, scenes, and what the robot senses.
 
-A world is data (:class:`WorldConfig`, read from ``core/data/*_world.json``): the
+A world is data (:class:`WorldConfig`, read from a ``*_world.json`` file, :mod:`sim.data`): the
 concept vocabulary, how many objects carry each noun x adjective pair (Table I),
 which behaviours apply to each noun (Table II), the contexts and their nouns
 (Table IV), the train/test split, and the physics the simulator needs (a shape
-primitive per noun, a :class:`core.sensors.BehaviourEffect` per verb).
+primitive per noun, a :class:`sim.sensors.BehaviourEffect` per verb).
 :func:`make_objects` turns it into labelled objects, :func:`generate_scenes`
 into bags of concepts (§V), and :class:`World` records raw payloads
-(:mod:`core.sensors`). Everything is a deterministic function of a seed.
+(:mod:`sim.sensors`). Everything is a deterministic function of a seed.
 """
 
 from __future__ import annotations
@@ -21,8 +21,9 @@ import numpy as np
 
 from core.errors import InvalidInputError
 from core.payloads import ObjectRecording
-from core.sensors import EASY, PRIMITIVES, BehaviourEffect, Difficulty, ObjectBody, make_body, record_object
-from core.vocabulary import Vocabulary, load_world_file
+from core.vocabulary import Vocabulary
+from sim.data import load_world_file
+from sim.sensors import EASY, PRIMITIVES, BehaviourEffect, Difficulty, ObjectBody, make_body, record_object
 
 TRAIN = "train"
 TEST = "test"
@@ -259,7 +260,7 @@ class WorldConfig:
 
     @classmethod
     def from_file(cls, name: str) -> WorldConfig:
-        """A world shipped in ``core/data/<name>_world.json``."""
+        """A world shipped as ``<name>_world.json`` (in ``sim/data``, else ``core/data``)."""
         return cls.from_dict(load_world_file(name))
 
     @classmethod
@@ -282,7 +283,7 @@ class WorldConfig:
         """A world with any number of contexts, for testing context discovery beyond the paper's three.
 
         The robot is the paper's (same adjective pairs, verbs and behaviour physics);
-        each context takes a theme of ``core/data/generic_world.json`` (in a seeded
+        each context takes a theme of ``sim/data/generic_world.json`` (in a seeded
         order; past the listed themes, systematic names ``context_7``...) and its
         first ``nouns_per_context`` nouns. Like the paper's world, nouns belong to one
         context while adjectives and verbs are shared: every context leans towards

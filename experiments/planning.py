@@ -2,7 +2,7 @@
 
 Protocol:
 
-1. Effects: the paper world's training objects are recorded (core.world) and
+1. Effects: the paper world's training objects are recorded (sim.world) and
    their effect vectors f extracted (core.features.recording_features); each
    behaviour's effect on position is learned from them (core.planning.learn_effects).
 2. Pruning: P(verb | context) is learned from scenes of the paper world and
@@ -50,7 +50,7 @@ from core.planning import (
     verb_given_context_from_model,
     verb_given_context_from_scenes,
 )
-from core.world import World
+from sim.world import World
 
 SCENARIOS = 10_000
 QUICK_SCENARIOS = 300

@@ -2,7 +2,7 @@
 
 Protocol:
 
-1. The paper world (core.world) is recorded; every object's entity vector e and
+1. The paper world (sim.world) is recorded; every object's entity vector e and
    the effect vector f of each applied behaviour are extracted
    (core.features.recording_features).
 2. Prototypes (Appendix) are fitted on the 45 training objects: nouns and
@@ -16,7 +16,7 @@ Protocol:
    (§IV-D, Fig. 13's third column) places each test object in a pure-context
    scene with other test objects of its context and takes P*(c) of Eq. 6 from
    the context feedback loop, with a context model learned from scenes of the
-   training objects (core.experiments.context_scenes gives the protocol).
+   training objects (experiments.context_scenes gives the protocol).
 5. Noun accuracy of an object = its most probable noun is right (0 or 1);
    adjective accuracy = the fraction of its 5 pairs whose more probable
    adjective is right; overall = the fraction of its 6 noun + adjective
@@ -46,13 +46,13 @@ import numpy as np
 
 from core.concept_web import ConceptWeb
 from core.context.feedback import PAPER_POOLING
-from core.experiments import context_scenes
 from core.features import recording_features
 from core.prototypes import PrototypeSet, fit_prototypes, perceive
 from core.prototypes.prototypes import IRRELEVANT
 from core.prototypes.prototypes import METHODS as PROTOTYPE_METHODS
 from core.vocabulary import Vocabulary
-from core.world import DEFAULT_WORLD, WORLDS, World, WorldObject
+from experiments import context_scenes
+from sim.world import DEFAULT_WORLD, WORLDS, World, WorldObject
 
 #: Random stream of the in-context method's context model and scenes, derived from the world seed.
 _IN_CONTEXT_STREAM = 7

@@ -29,7 +29,7 @@ from core.context import IncrementalLDA
 from core.context.feedback import PAPER_POOLING, PAPER_SIGMA, contextual_feedback
 from core.features import recording_features
 from core.vocabulary import Vocabulary
-from core.world import World, WorldObject
+from sim.world import World, WorldObject
 
 #: Pure-context training scenes the context model learns from (the paper's experiments use up to 50).
 TRAINING_SCENES = 50

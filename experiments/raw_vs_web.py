@@ -2,7 +2,7 @@
 
 Protocol:
 
-1. :func:`core.experiments.sigma.fitted_setup`: every object of the world is
+1. :func:`experiments.sigma.fitted_setup`: every object of the world is
    recorded and its features extracted once; prototypes and the concept web are
    fitted on the training objects.
 2. Two ways to turn an object into LDA words:
@@ -54,11 +54,11 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from core.context import LDAState
-from core.experiments import context_scenes
-from core.experiments.recognition import RecognitionSetup
-from core.experiments.sigma import fitted_setup
 from core.prototypes import perceive
-from core.world import Scene, World, WorldObject
+from experiments import context_scenes
+from experiments.recognition import RecognitionSetup
+from experiments.sigma import fitted_setup
+from sim.world import Scene, World, WorldObject
 
 SCENE_COUNTS = (1, 3, 5, 10, 20, 50)
 BIN_COUNTS = (2, 5, 10, 20, 50)

@@ -2,7 +2,7 @@
 
 Protocol:
 
-1. :func:`core.experiments.sigma.prepare`: prototypes, concept web, the test
+1. :func:`experiments.sigma.prepare`: prototypes, concept web, the test
    objects' perceptions and a context model learned from training scenes.
 2. For every noise probability (10 %–90 %) and each of ``--trials`` trials, the
    test perceptions are corrupted (:func:`reverse_perceptions`) and the test
@@ -29,9 +29,9 @@ from typing import Any
 import matplotlib.pyplot as plt
 import numpy as np
 
-from core.experiments import context_scenes, recognition
-from core.experiments.sigma import ContextExperiment, prepare
 from core.vocabulary import Vocabulary
+from experiments import context_scenes, recognition
+from experiments.sigma import ContextExperiment, prepare
 
 NOISE_LEVELS = tuple(round(0.1 * i, 1) for i in range(1, 10))
 SIGMAS = NOISE_LEVELS

@@ -34,7 +34,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from core.context import IncrementalLDA
-from core.world import WorldConfig, generate_scenes
+from sim.world import WorldConfig, generate_scenes
 
 RULES = ("scenes", "likelihood", "paper")
 SCENE_COUNTS = (1, 2, 3, 5, 10, 20, 50, 100)

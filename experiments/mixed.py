@@ -30,7 +30,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from core.context import IncrementalLDA
-from core.world import Scene, WorldConfig, generate_scenes, scene_from_nouns, table_vi_scenes
+from sim.world import Scene, WorldConfig, generate_scenes, scene_from_nouns, table_vi_scenes
 
 UNNAMED = "unnamed"
 

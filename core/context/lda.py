@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from core.context import _gibbs_kernels as kernels
+from core.context import _partition_kernels as partition_kernels
 from core.context import _sparse_kernels as sparse_kernels
 from core.context.metrics import dirichlet_multinomial_log_likelihood
 from core.errors import InvalidInputError
@@ -312,6 +313,17 @@ class LDAState:
             kernels.scene_to_one_context(
                 self._words, self._z, start, stop, scene, self._n_wk, self._n_k, self._n_dk,
                 self.n_contexts, self.alpha, self.xi, self.vocab_size, float(rng.random()),
+            )
+        )  # fmt: skip
+
+    def scene_novelty(self, word_ids: np.ndarray, first_doc: int, strength: float) -> float:
+        """How much better a fresh context explains the scene ``word_ids`` (not yet added) than
+        the best existing context without scenes ``first_doc:``, in nats, under the corpus-centred
+        prior of ``strength`` pseudo-counts per concept (``partition_kernels.scene_novelty``)."""
+        return float(
+            partition_kernels.scene_novelty(
+                word_ids, self._words, self._z, int(self._offsets[first_doc]), self.n_tokens,
+                self._n_wk, self._n_k, self.n_contexts, self.vocab_size, self.xi, strength,
             )
         )  # fmt: skip
 

@@ -54,7 +54,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from core.context.lda import LDAState, layout_problems
+from core.context.lda import LDAState, SeededUniforms, layout_problems
 from core.context.metrics import PAPER_RHO, RELEVANCE_WEIGHT, concept_relevance, contextual_entropy
 from core.context.scene_partition import SceneBlocks, best_partition, corpus_centred_prior
 from core.errors import InvalidInputError
@@ -522,18 +522,20 @@ class IncrementalLDA:
 
     def infer_scene(self, words: Sequence[str], *, seed: int = 0) -> np.ndarray:
         """Context posterior θ (K,) of an unseen scene, by fold-in Gibbs sampling against the
-        current counts (the model, including its random state, is left unchanged).
+        current counts (the model, including its random state, is left unchanged), with the random
+        numbers of ``np.random.default_rng(seed)``, memoised per seed (:class:`SeededUniforms`).
 
         Concepts the model has never seen carry no evidence and are ignored; a scene of
         only such concepts gets the uniform prior.
         """
-        words = _validated_words(words, "words")
-        rng = np.random.default_rng(_validated_seed(seed))
-        known = np.array([self._index[w] for w in words if w in self._index], dtype=np.int32)
+        words = _scene_words(words)
+        uniforms = SeededUniforms(_validated_seed(seed))
+        index = self._index
+        known = np.fromiter((index[w] for w in words if w in index), dtype=np.int32)
         if known.shape[0] == 0:
             return np.full(self.n_contexts, 1.0 / self.n_contexts)
         h = self.hyperparameters
-        return self._state.fold_in(known, rng, h.inference_sweeps, h.inference_burn_in)
+        return self._state.fold_in(known, uniforms, h.inference_sweeps, h.inference_burn_in)
 
     def context_posterior(self, scene: Sequence[str] | int, *, seed: int = 0) -> np.ndarray:
         """P(χ | scene), (K,): a learned scene by index (its θ), or an unseen one by its concepts."""

@@ -108,16 +108,16 @@ def scene_novelty(
     scale = strength * vocab_size / (corpus_total + vocab_size * xi)
     prior_total = strength * vocab_size
     beta = np.empty(n_tokens)
-    earlier = np.zeros(n_tokens)
+    earlier = np.empty(n_tokens)
+    seen = np.zeros(vocab_size, dtype=np.int32)
     for j in range(n_tokens):
         w = word_ids[j]
         corpus = 0.0
         for k in range(n_contexts):
             corpus += n_wk[w, k]
         beta[j] = scale * (corpus + xi)
-        for i in range(j):
-            if word_ids[i] == w:
-                earlier[j] += 1.0
+        earlier[j] = seen[w]
+        seen[w] += 1
     for i in range(window_start, window_stop):
         n_wk[words[i], z[i]] -= 1
         n_k[z[i]] -= 1

@@ -234,3 +234,17 @@ def test_corrupted_state_is_refused() -> None:
     wrong_offsets = ContextModelState(**{**state.__dict__, "doc_offsets": state.doc_offsets[:-1]})
     with pytest.raises(InvalidInputError, match="state"):
         IncrementalLDA.from_state(wrong_offsets)
+
+
+def test_infer_scene_draws_what_a_fresh_generator_of_its_seed_draws() -> None:
+    """The memoised random numbers (SeededUniforms) are a fresh default_rng(seed)'s, whichever
+    scene length asked first."""
+    model = IncrementalLDA(seed=0).fit(_paper_scenes(30, 0))
+    state, h = model.lda_state, model.hyperparameters
+    short, long = list(_paper_scenes(40, 9)[0][:5]), [w for scene in _paper_scenes(40, 9)[:4] for w in scene]
+    for words in (short, long, short):
+        for seed in (12345, 12346):
+            expected = state.fold_in(
+                model._ids(words), np.random.default_rng(seed), h.inference_sweeps, h.inference_burn_in
+            )
+            assert np.array_equal(model.infer_scene(words, seed=seed), expected)

@@ -76,3 +76,68 @@ def partition_scans(
             context_counts[chosen, scene_words[j]] += scene_counts[j]
         context_totals[chosen] += scene_totals[s]
     return greedy_changes
+
+
+@numba.njit(cache=True, nogil=True)
+def scene_novelty(
+    word_ids: np.ndarray,
+    words: np.ndarray,
+    z: np.ndarray,
+    window_start: int,
+    window_stop: int,
+    n_wk: np.ndarray,
+    n_k: np.ndarray,
+    n_contexts: int,
+    vocab_size: int,
+    xi: float,
+    strength: float,
+) -> float:
+    """How much better a fresh context explains a new scene than the best existing one did before
+    the window, in nats: log DM(x | β) − max_k log DM(x | n_k + β), x the scene's concept counts
+    as one block, β the corpus-centred prior of
+    :func:`core.context.scene_partition.corpus_centred_prior` and n_k what context k holds
+    without the tokens ``window_start:window_stop`` (the recent scenes, which a first scene of a
+    new context may already have pulled into an old one). The block terms are those of
+    :func:`partition_scans`, as the scene's tokens joining one by one:
+    Π_j (n_kc_j + β_c_j + earlier c_j of the scene) / (T_k + B + j). The counts are restored.
+    """
+    n_tokens = word_ids.shape[0]
+    corpus_total = 0.0
+    for k in range(n_contexts):
+        corpus_total += n_k[k]
+    scale = strength * vocab_size / (corpus_total + vocab_size * xi)
+    prior_total = strength * vocab_size
+    beta = np.empty(n_tokens)
+    earlier = np.empty(n_tokens)
+    seen = np.zeros(vocab_size, dtype=np.int32)
+    for j in range(n_tokens):
+        w = word_ids[j]
+        corpus = 0.0
+        for k in range(n_contexts):
+            corpus += n_wk[w, k]
+        beta[j] = scale * (corpus + xi)
+        earlier[j] = seen[w]
+        seen[w] += 1
+    for i in range(window_start, window_stop):
+        n_wk[words[i], z[i]] -= 1
+        n_k[z[i]] -= 1
+    best = -np.inf
+    fresh = 0.0
+    for k in range(n_contexts + 1):  # k = n_contexts: the fresh context
+        log_weight, weight = 0.0, 1.0
+        held = n_k[k] if k < n_contexts else 0.0
+        for j in range(n_tokens):
+            count = n_wk[word_ids[j], k] if k < n_contexts else 0.0
+            weight *= (count + beta[j] + earlier[j]) / (held + prior_total + j)
+            if weight < 1e-200:
+                log_weight += math.log(weight)
+                weight = 1.0
+        log_weight += math.log(weight)
+        if k < n_contexts:
+            best = max(best, log_weight)
+        else:
+            fresh = log_weight
+    for i in range(window_start, window_stop):
+        n_wk[words[i], z[i]] += 1
+        n_k[z[i]] += 1
+    return fresh - best

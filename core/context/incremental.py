@@ -35,11 +35,14 @@ Online (:meth:`IncrementalLDA.learn_scene`) the model never re-learns: a new sce
 first joins one context as a whole (drawn from the exact collapsed probabilities
 of Eq. 5's model), then its tokens are sampled for ``scene_sweeps`` sweeps, each together with
 ``rejuvenation_tokens`` earlier tokens drawn uniformly (Canini, Shi & Griffiths
-2009), and growth is checked only on a window of the last ``birth_window`` scenes
-(after each of the first ``birth_check_interval`` scenes, then every
-``birth_check_interval`` scenes), scoring the window given the scenes before it.
-So an update costs O(scene + rejuvenation) and a growth check O(window), whatever
-the number of scenes learned.
+2009), and growth is checked only on a window of the last scenes, scoring the
+window given the scenes before it: on the last ``birth_window`` scenes after each
+of the first ``birth_check_interval`` scenes and after 2, 4, 8, ... times that many;
+on the last ``novelty_window`` scenes after a scene that a fresh context explains
+better than every existing one (novelty, :meth:`LDAState.scene_novelty`), so that a
+new context is found within a few scenes of its first (docs/context.md, "When
+growth is checked online"). So an update costs O(scene + rejuvenation) and a
+growth check O(window), whatever the number of scenes learned.
 """
 
 from __future__ import annotations
@@ -51,7 +54,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from core.context.lda import LDAState, layout_problems
+from core.context.lda import LDAState, SeededUniforms, layout_problems
 from core.context.metrics import PAPER_RHO, RELEVANCE_WEIGHT, concept_relevance, contextual_entropy
 from core.context.scene_partition import SceneBlocks, best_partition, corpus_centred_prior
 from core.errors import InvalidInputError
@@ -121,7 +124,14 @@ class Hyperparameters:
     birth_window: int = 100
     """Online: growth is decided on the last this-many scenes."""
     birth_check_interval: int = 25
-    """Online: growth is checked after each of the first this-many scenes, then every this-many."""
+    """Online: growth is checked on the last ``birth_window`` scenes after each of the first
+    this-many scenes, then after scenes 2, 4, 8, ... times this many (a safety net for contexts
+    merged while young, which no single scene announces); besides, novelty triggers checks
+    (``novelty_window``; docs/context.md, "When growth is checked online")."""
+    novelty_window: int = 20
+    """Online: a scene that a fresh context explains better than every existing context held
+    before the last this-many scenes (``LDAState.scene_novelty`` > 0) triggers a growth check on
+    the last this-many scenes, itself included (docs/context.md, "When growth is checked online")."""
     inference_sweeps: int = 30
     """Fold-in sweeps of :meth:`IncrementalLDA.infer_scene`."""
     inference_burn_in: int = 10
@@ -154,6 +164,7 @@ class Hyperparameters:
             "online_partition_scans",
             "birth_window",
             "birth_check_interval",
+            "novelty_window",
             "inference_sweeps",
         ):
             value = getattr(self, name)
@@ -341,10 +352,10 @@ class IncrementalLDA:
         contexts_before = state.n_contexts
         ids, additions = self._scene_ids(words)
         earlier = state.n_tokens
+        first_doc = self._growth_window(ids)
         scene, touched, previous = state.add_scene_online(ids, self._rng, h.scene_sweeps, h.rejuvenation_tokens)
-        growth_checked = self._growth_due(scene)
-        if growth_checked:
-            first_doc = max(0, state.n_documents - h.birth_window)
+        growth_checked = first_doc is not None
+        if first_doc is not None:
             window = np.arange(state.doc_offsets[first_doc], earlier, dtype=np.int64)
             touched = np.concatenate([touched, window])
             previous = np.concatenate([previous, state.assignments[window]])
@@ -369,10 +380,26 @@ class IncrementalLDA:
             growth_checked=growth_checked,
         )
 
-    def _growth_due(self, scene: int) -> bool:
-        h = self.hyperparameters
-        seen = scene + 1
-        return not self.context_cap_reached and (seen <= h.birth_check_interval or seen % h.birth_check_interval == 0)
+    def _growth_window(self, word_ids: np.ndarray) -> int | None:
+        """The first scene of the window that a growth check after learning ``word_ids`` runs on,
+        or None for no check (docs/context.md, "When growth is checked online"). Scheduled: after
+        each of the first ``birth_check_interval`` scenes and after scenes 2, 4, 8, ... times
+        ``birth_check_interval``, on the last ``birth_window`` scenes. On novelty: when a fresh
+        context explains the scene better than every context held before the last
+        ``novelty_window`` scenes (the ``"scenes"`` rule's block evidence,
+        :meth:`LDAState.scene_novelty` > 0), on the last ``novelty_window`` scenes. Decided before
+        the scene joins: its own tokens must not count for the contexts."""
+        h, state = self.hyperparameters, self._state
+        if self.context_cap_reached:
+            return None
+        seen = state.n_documents + 1
+        periods, rest = divmod(seen, h.birth_check_interval)
+        if seen <= h.birth_check_interval or (rest == 0 and periods & (periods - 1) == 0):
+            return max(0, seen - h.birth_window)
+        first_doc = max(0, seen - h.novelty_window)
+        if state.scene_novelty(word_ids, first_doc, h.scene_prior_strength) > 0.0:
+            return first_doc
+        return None
 
     def _grow_contexts(self, first_doc: int, online: bool) -> None:
         """Algorithm 2's inner loop on scenes ``first_doc:`` (all of them in batch, the window online)."""
@@ -495,18 +522,20 @@ class IncrementalLDA:
 
     def infer_scene(self, words: Sequence[str], *, seed: int = 0) -> np.ndarray:
         """Context posterior θ (K,) of an unseen scene, by fold-in Gibbs sampling against the
-        current counts (the model, including its random state, is left unchanged).
+        current counts (the model, including its random state, is left unchanged), with the random
+        numbers of ``np.random.default_rng(seed)``, memoised per seed (:class:`SeededUniforms`).
 
         Concepts the model has never seen carry no evidence and are ignored; a scene of
         only such concepts gets the uniform prior.
         """
-        words = _validated_words(words, "words")
-        rng = np.random.default_rng(_validated_seed(seed))
-        known = np.array([self._index[w] for w in words if w in self._index], dtype=np.int32)
+        words = _scene_words(words)
+        uniforms = SeededUniforms(_validated_seed(seed))
+        index = self._index
+        known = np.fromiter((index[w] for w in words if w in index), dtype=np.int32)
         if known.shape[0] == 0:
             return np.full(self.n_contexts, 1.0 / self.n_contexts)
         h = self.hyperparameters
-        return self._state.fold_in(known, rng, h.inference_sweeps, h.inference_burn_in)
+        return self._state.fold_in(known, uniforms, h.inference_sweeps, h.inference_burn_in)
 
     def context_posterior(self, scene: Sequence[str] | int, *, seed: int = 0) -> np.ndarray:
         """P(χ | scene), (K,): a learned scene by index (its θ), or an unseen one by its concepts."""

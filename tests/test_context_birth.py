@@ -1,0 +1,58 @@
+"""Online Incremental-LDA finds a late context within a few scenes (issue 17, goal 6), without
+opening contexts that are not there. Seeds 100-104: ``bench.bench_context_birth`` measures on 0-9."""
+
+from __future__ import annotations
+
+import math
+import statistics
+
+import pytest
+
+from bench.bench_context_birth import SCENARIOS, birth_run, steady_run
+from core.context import IncrementalLDA
+
+SEEDS = range(100, 105)
+
+
+@pytest.fixture(scope="module")
+def late_runs() -> list:
+    return [birth_run(scenario, seed) for scenario in SCENARIOS for seed in SEEDS]
+
+
+def test_a_late_context_is_found_within_five_scenes_at_the_median(late_runs: list) -> None:
+    # A miss counts as never found, so misses push the median up instead of leaving it.
+    delays = [math.inf if run.delay is None else run.delay for run in late_runs]
+    assert statistics.median(delays) <= 5, delays
+    assert sum(run.delay is None for run in late_runs) <= len(late_runs) // 10, delays
+
+
+def test_late_contexts_rarely_open_a_context_that_is_not_there(late_runs: list) -> None:
+    excess = [run.max_excess for run in late_runs]
+    assert sum(e > 0 for e in excess) <= len(late_runs) // 10 and max(excess) <= 1, excess
+
+
+@pytest.mark.parametrize("scenario", ["paper", "generic-5"])
+def test_steady_streams_keep_k_and_check_growth_rarely(scenario: str) -> None:
+    """Every context from the start: no false birth, K found, and after the first scheduled checks
+    only the doubling ones (4 in 400 scenes) and a few that novelty triggers."""
+    scheduled = 4  # after scenes 50, 100, 200 and 400 (birth_check_interval 25)
+    for seed in SEEDS[:2]:
+        row = steady_run(scenario, seed)
+        assert row["max_excess"] == 0 and row["final_k"] == (3 if scenario == "paper" else 5), row
+        assert scheduled <= row["checks_after_start"] <= scheduled + 8, row
+
+
+def test_novelty_is_zero_for_a_repeated_scene_and_large_for_unseen_concepts() -> None:
+    """The trigger's evidence: a scene already learned many times fits its context better than a
+    fresh one; a scene of concepts no context holds is explained better by a fresh context."""
+    model = IncrementalLDA(seed=0)
+    for _ in range(30):
+        model.learn_scene(["cup", "plate", "grasp", "cup"])
+    state = model.lda_state
+    known = state.scene_novelty(model._ids(["cup", "plate", "grasp", "cup"]), state.n_documents, 1.0)
+    model._add_concepts(["hammer", "nail"])
+    unseen = state.scene_novelty(model._ids(["hammer", "nail", "hammer", "grasp"]), state.n_documents, 1.0)
+    assert known < 0.0 < unseen
+    before = (state.n_wk.copy(), state.n_k.copy())
+    state.scene_novelty(model._ids(["hammer", "nail"]), state.n_documents - 10, 1.0)
+    assert (state.n_wk == before[0]).all() and (state.n_k == before[1]).all()

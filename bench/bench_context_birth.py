@@ -31,7 +31,7 @@ from typing import Any
 
 from bench import RESULTS
 from core.context import IncrementalLDA
-from core.world import World, WorldConfig, generate_scenes
+from sim.world import World, WorldConfig, generate_scenes
 
 SEEDS = tuple(range(10))
 SCENARIOS = ("paper", "generic-2", "generic-3", "generic-4", "generic-5")

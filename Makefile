@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.cache/numba
 export MPLBACKEND ?= Agg
 
-.PHONY: run test install dev browser bench report clean constraints
+.PHONY: run test install dev browser monitoring-tools bench report clean constraints
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -37,9 +37,16 @@ browser:
 	  { [ "$$(id -u)" = 0 ] && apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null; } || \
 	  echo "make: no chromium could be installed; the browser test will be skipped"
 
+# Debian's Prometheus, the program of the compose monitoring profile's image, for the test that scrapes a
+# real server and evaluates the Grafana dashboard's queries; where it cannot be installed that test skips.
+monitoring-tools:
+	@command -v prometheus >/dev/null || \
+	  { [ "$$(id -u)" = 0 ] && apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends prometheus >/dev/null; } || \
+	  echo "make: no prometheus could be installed; the monitoring test will be skipped"
+
 # Two pytest workers: the slow tests mostly wait (servers starting, outages, recoveries), and two
 # workers take the suite from ~12 to ~7 minutes on a 2-core machine.
-test: $(VENV)/.installed-dev browser
+test: $(VENV)/.installed-dev browser monitoring-tools
 	$(BIN)/python -m pytest -n 2
 
 bench: $(VENV)/.installed-dev

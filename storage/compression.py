@@ -29,7 +29,37 @@ import numpy as np
 _ANSWER_FORMAT_1 = 1
 
 #: The paper's 29 concepts in the vocabulary's order, as answers list them (frozen with the dictionary).
-_PAPER_CONCEPTS_1 = ["box", "ball", "cylinder", "cup", "plate", "tool", "hard", "soft", "noisy", "silent", "tall", "short", "thin", "thick", "round", "edgy", "grasp", "push_left", "push_right", "push_forward", "push_backward", "move_left", "move_right", "move_forward", "move_backward", "drop", "throw", "knock_down", "shake"]
+_PAPER_CONCEPTS_1 = [
+    "box",
+    "ball",
+    "cylinder",
+    "cup",
+    "plate",
+    "tool",
+    "hard",
+    "soft",
+    "noisy",
+    "silent",
+    "tall",
+    "short",
+    "thin",
+    "thick",
+    "round",
+    "edgy",
+    "grasp",
+    "push_left",
+    "push_right",
+    "push_forward",
+    "push_backward",
+    "move_left",
+    "move_right",
+    "move_forward",
+    "move_backward",
+    "drop",
+    "throw",
+    "knock_down",
+    "shake",
+]
 
 
 def _concept_block(key: str, value: str) -> str:

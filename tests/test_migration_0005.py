@@ -8,9 +8,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from alembic import command
 from sqlalchemy import Engine, create_engine, text
 
+from alembic import command
 from storage.database import create_database_engine, create_session_makers
 from storage.migrations import alembic_config
 from storage.repositories import scenes as scene_repository

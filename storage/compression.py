@@ -108,10 +108,11 @@ def pack_arrays(arrays: dict[str, np.ndarray]) -> bytes:
 
 
 def unpack_arrays(blob: bytes) -> dict[str, np.ndarray]:
-    """The arrays of :func:`pack_arrays`, as int64 (raises ValueError on a damaged blob)."""
+    """The arrays of :func:`pack_arrays`, in their stored (narrow) types: the caller converts each once
+    (raises ValueError on a damaged blob)."""
     try:
         with np.load(io.BytesIO(zlib.decompress(blob)), allow_pickle=False) as archive:
-            return {name: archive[name].astype(np.int64) for name in archive.files}
+            return {name: archive[name] for name in archive.files}
     except (zlib.error, OSError, KeyError, EOFError) as error:
         raise ValueError(f"not a packed array blob ({type(error).__name__}: {error})") from error
 

@@ -338,7 +338,7 @@ def load_checkpoint(session: Session, model_id: str) -> StoredCheckpoint | None:
             f"incremental_lda_checkpoint holds {words.shape[0]} words, {contexts.shape[0]} contexts and "
             f"{lengths.shape[0]} scenes, its row says {row.token_count} tokens and {row.scene_count} scenes"
         )
-    if int(lengths.sum()) != row.token_count or (lengths.size and lengths.min() < 1):
+    if int(lengths.sum(dtype=np.int64)) != row.token_count or (lengths.size and lengths.min() < 1):
         raise DamagedCheckpointError("incremental_lda_checkpoint's scene lengths do not add up to its tokens")
     return StoredCheckpoint(
         version=int(row.version),
@@ -346,7 +346,7 @@ def load_checkpoint(session: Session, model_id: str) -> StoredCheckpoint | None:
         word_count=int(row.word_count),
         words=words.astype(np.int32),
         contexts=contexts.astype(np.int32),
-        doc_offsets=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int32),
+        doc_offsets=np.concatenate([[0], np.cumsum(lengths, dtype=np.int64)]).astype(np.int32),
     )
 
 

@@ -7,12 +7,14 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, text
 
 from app.main import create_app
 from app.state import AppState
 from core.context.incremental import ContextModelState
+from storage.compression import pack_arrays, unpack_arrays
 from storage.database import create_database_engine, create_session_makers
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories.consistency import check_model, repair_model
@@ -145,3 +147,25 @@ def test_models_check_names_a_corrupted_checkpoint_and_repair_rebuilds_it(databa
 
     with TestClient(create_app(settings)) as client:  # repaired: it loads, equal to the sound model
         _same_state(_memory(client, model_id), sound)
+
+
+def test_packed_arrays_round_trip_in_the_narrowest_type_and_damage_is_refused() -> None:
+    arrays: dict[str, np.ndarray] = {
+        "empty": np.zeros(0, dtype=np.int32),
+        "small": np.array([0, 3, 255], dtype=np.int32),
+        "words": np.array([0, 256, 70_000], dtype=np.int64),
+        "signed": np.array([-1, 5, 2**40], dtype=np.int64),
+    }
+    unpacked = unpack_arrays(pack_arrays(arrays))
+    assert {name: value.dtype for name, value in unpacked.items()} == {
+        "empty": np.uint8,
+        "small": np.uint8,
+        "words": np.uint32,
+        "signed": np.int64,
+    }
+    for name, value in arrays.items():
+        assert np.array_equal(unpacked[name].astype(np.int64), value), name
+    blob = pack_arrays(arrays)
+    for damaged in (blob[: len(blob) // 2], b"junk", bytes(len(blob))):
+        with pytest.raises(ValueError):
+            unpack_arrays(damaged)

@@ -75,7 +75,8 @@ def test_upgrading_converts_old_answers_byte_for_byte_and_downgrading_restores_t
         _migrate(engine, "head")
         read, _ = create_session_makers(engine)
         with read() as session:
-            assert [scene_repository.get_scene(session, "m", i).answer for i in range(len(ANSWERS))] == ANSWERS
+            scenes = [scene_repository.get_scene(session, "m", i) for i in range(len(ANSWERS))]
+            assert [scene.answer if scene else None for scene in scenes] == ANSWERS
             replayed = scene_repository.find_by_idempotency_key(session, "m", "key-1")
             assert replayed is not None and replayed.answer == ANSWERS[1]
         with engine.connect() as connection:

@@ -20,6 +20,7 @@ converts them back.
 """
 
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import sqlalchemy as sa
 
@@ -60,14 +61,14 @@ def upgrade() -> None:
 
 def downgrade() -> None:
     op.add_column("scene", sa.Column("answer", sa.Text(), nullable=True))
-    _convert("answer_zlib", "answer", lambda stored: decompress_answer(bytes(stored)))
+    _convert("answer_zlib", "answer", lambda stored: decompress_answer(bytes(stored)))  # bytea reads as memoryview
     with op.batch_alter_table("scene") as batch_op:
         batch_op.alter_column("answer", existing_type=sa.Text(), nullable=False)
         batch_op.drop_column("answer_zlib")
     op.drop_table("incremental_lda_checkpoint")
 
 
-def _convert(source: str, target: str, convert: Callable[[object], object]) -> None:
+def _convert(source: str, target: str, convert: Callable[[Any], Any]) -> None:
     """Fill ``scene.<target>`` with ``convert(scene.<source>)``, batch by batch in (model_id, id) order."""
     connection = op.get_bind()
     scene = sa.table("scene", sa.column("model_id"), sa.column("id"), sa.column(source), sa.column(target))

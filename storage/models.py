@@ -164,7 +164,10 @@ class Token(Base):
     """
 
     __tablename__ = "token"
-    __table_args__ = (Index("ix_token_model_id_version", "model_id", "version"),)
+    __table_args__ = (
+        Index("ix_token_model_id_version", "model_id", "version"),
+        {"sqlite_with_rowid": False},  # clustered on its key: no second copy of it (alembic 0005)
+    )
 
     model_id: Mapped[str] = mapped_column(_model_fk(), primary_key=True)
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)

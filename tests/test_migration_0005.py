@@ -1,5 +1,6 @@
 """Migration 0005 converts the answers of a database written before it: every scene's answer reads back
-byte for byte, on SQLite and PostgreSQL, and the downgrade gives the old rows back."""
+byte for byte, on SQLite and PostgreSQL, the token rows are kept (SQLite's table rebuilt without
+rowid), and the downgrade gives the old rows back."""
 
 from __future__ import annotations
 
@@ -23,6 +24,21 @@ ANSWERS = [
     '{"scene_id":1,"objects":[' + ",".join(f'{{"web":{{"cup":{i / 7!r}}}}}' for i in range(1500)) + "]}",
     "{}",
 ]
+
+
+#: (id, scene, word, context, version) token rows of the old database.
+TOKENS = [(0, 0, 3, 1, 1), (1, 0, 7, 0, 2), (2, 1, 3, 1, 2)]
+
+
+def _tokens(engine: Engine) -> list[tuple[int, ...]]:
+    with engine.connect() as connection:
+        rows = connection.execute(text("SELECT id, scene_id, word_id, context, version FROM token ORDER BY id")).all()
+    return [tuple(row) for row in rows]
+
+
+def _token_table_sql(engine: Engine) -> str:
+    with engine.connect() as connection:
+        return connection.execute(text("SELECT sql FROM sqlite_master WHERE name = 'token'")).scalar_one()
 
 
 @pytest.fixture(params=BACKENDS)
@@ -72,7 +88,18 @@ def test_upgrading_converts_old_answers_byte_for_byte_and_downgrading_restores_t
                     ),
                     {"id": scene_id, "key": f"key-{scene_id}", "answer": answer},
                 )
+            for token in TOKENS:
+                connection.execute(
+                    text(
+                        "INSERT INTO token (model_id, id, scene_id, word_id, context, version) "
+                        "VALUES ('m', :id, :scene, :word, :context, :version)"
+                    ),
+                    dict(zip(("id", "scene", "word", "context", "version"), token, strict=True)),
+                )
         _migrate(engine, "head")
+        assert _tokens(engine) == TOKENS
+        if engine.dialect.name == "sqlite":
+            assert "WITHOUT ROWID" in _token_table_sql(engine)
         read, _ = create_session_makers(engine)
         with read() as session:
             scenes = [scene_repository.get_scene(session, "m", i) for i in range(len(ANSWERS))]
@@ -87,5 +114,8 @@ def test_upgrading_converts_old_answers_byte_for_byte_and_downgrading_restores_t
         with engine.connect() as connection:
             rows = connection.execute(text("SELECT answer FROM scene ORDER BY id")).scalars().all()
         assert rows == ANSWERS
+        assert _tokens(engine) == TOKENS
+        if engine.dialect.name == "sqlite":
+            assert "WITHOUT ROWID" not in _token_table_sql(engine)
     finally:
         engine.dispose()

@@ -19,6 +19,13 @@ compressed answers as over HTTP; 500 scenes a transaction, to build fast), then:
 - ``p50/p99``: 300 further scenes posted over HTTP (one lean client) to the
   big model and to the 1,000-scene one.
 
+``--synthetic=1000000x78,1000000x20`` adds the model part of a start on synthetic corpora of
+that many scenes and tokens a scene (4 contexts, the paper's 29 concepts, each scene's tokens
+mostly in its context), where building the corpus through the service would take hours here:
+the checkpoint's bytes, its packing and writing (what the checkpointing scene pays), reading
+and unpacking, and the
+model built from it (``stored_incremental_lda``, no tail) with its memory (tracemalloc).
+
 Results go to bench/results/restart.json.
 """
 
@@ -28,20 +35,24 @@ import json
 import sys
 import tempfile
 import time
+import tracemalloc
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from fastapi.testclient import TestClient
 from sqlalchemy import text
 
 from app.main import create_app
-from app.registry import load_runtime
+from app.registry import load_runtime, stored_incremental_lda
 from app.schemas.scenes import SceneCreate
 from app.services import scenes as scene_service
 from app.settings import Settings
 from bench.bench_service import LeanClient, Server, _summary, concept_scenes
 from core.world import World
 from storage.database import create_database_engine, create_session_makers, snapshot
+from storage.models import IncrementalLdaCheckpoint
+from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import models as model_repository
 from storage.unit_of_work import unit_of_work
 from tests.conftest import synthetic_training_objects
@@ -125,6 +136,74 @@ def load_seconds(path: Path, model_id: str) -> dict[str, float]:
     return times
 
 
+def synthetic_load(scenes: int, tokens_per_scene: int, contexts: int = 4) -> dict[str, float]:
+    """The model part of a start on a synthetic checkpoint (see the module's docstring)."""
+    rng = np.random.default_rng(0)
+    names = list(World.paper(0).vocabulary.concepts)
+    scene_context = rng.integers(0, contexts, scenes)
+    words = ((rng.integers(0, 12, (scenes, tokens_per_scene)) + scene_context[:, None] * 5) % len(names)).ravel()
+    drawn = rng.integers(0, contexts, (scenes, tokens_per_scene))
+    assignments = np.where(rng.random((scenes, tokens_per_scene)) < 0.9, scene_context[:, None], drawn).ravel()
+    n_kw = np.zeros((contexts, len(names)), dtype=np.int64)
+    np.add.at(n_kw, (assignments, words), 1)
+    saved = lda_repository.StoredCheckpoint(
+        version=scenes,
+        context_count=contexts,
+        word_count=len(names),
+        words=words.astype(np.int32),
+        contexts=assignments.astype(np.int32),
+        doc_offsets=(np.arange(scenes + 1) * tokens_per_scene).astype(np.int32),
+    )
+    del words, assignments, drawn
+    directory = tempfile.TemporaryDirectory(prefix="bench_restart_synthetic_")
+    engine = create_database_engine(f"sqlite:///{directory.name}/checkpoint.sqlite3")  # its table's round trip
+    _, write = create_session_makers(engine)
+    try:
+        with write() as session:
+            session.execute(text("CREATE TABLE model (id VARCHAR(32) PRIMARY KEY)"))
+            session.execute(text("INSERT INTO model VALUES ('synthetic')"))
+            IncrementalLdaCheckpoint.__table__.create(session.connection())
+            started = time.perf_counter()
+            lda_repository.save_checkpoint(session, "synthetic", saved)
+            save_s = time.perf_counter() - started
+            del saved
+            started = time.perf_counter()
+            checkpoint = lda_repository.load_checkpoint(session, "synthetic")
+            load_s = time.perf_counter() - started
+            blob_bytes = session.execute(text("SELECT length(arrays) FROM incremental_lda_checkpoint")).scalar_one()
+    finally:
+        engine.dispose()
+        directory.cleanup()
+    entries = np.array([(k, w, n_kw[k, w]) for k in range(contexts) for w in range(len(names))], dtype=np.int64)
+    stored = lda_repository.StoredStart(
+        word_names=names,
+        word_kinds=[None] * len(names),
+        checkpoint=checkpoint,
+        tail=np.zeros((0, 4), dtype=np.int64),
+        count_entries=entries,
+        scene_count=scenes,
+        context_count=contexts,
+        state={"rng_state": np.random.default_rng(1).bit_generator.state},
+        version=scenes,
+    )
+    tracemalloc.start()
+    started = time.perf_counter()
+    model = stored_incremental_lda(stored, {})
+    build_s = time.perf_counter() - started
+    memory, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    del model
+    return {
+        "checkpoint_bytes": blob_bytes,
+        "checkpoint_bytes_per_scene": round(blob_bytes / scenes, 1),
+        "pack_and_write_s": round(save_s, 2),
+        "read_and_unpack_s": round(load_s, 2),
+        "build_model_s": round(build_s, 2),
+        "model_memory_per_scene": round(memory / scenes, 1),
+        "peak_bytes": peak,
+    }
+
+
 def serve(path: Path, log: Path) -> tuple[Server, float, int]:
     started = time.perf_counter()
     server = Server(f"sqlite:///{path}", log)
@@ -149,13 +228,22 @@ def latency(server: Server, model_id: str, scenes: list[dict[str, Any]]) -> dict
 
 def main() -> dict:
     sizes: tuple[int, ...] = DEFAULT_SIZES
+    synthetic: list[tuple[int, int]] = []
     for arg in sys.argv[1:]:
         if arg.startswith("--sizes="):
-            sizes = tuple(int(size) for size in arg.split("=", 1)[1].split(","))
+            sizes = tuple(int(size) for size in arg.split("=", 1)[1].split(",") if size)
+        if arg.startswith("--synthetic="):
+            synthetic = [(int(a), int(b)) for a, b in (item.split("x") for item in arg.split("=", 1)[1].split(","))]
     world = World.paper(0)
     pool = concept_scenes(world, 2_000, seed=7)
     later = concept_scenes(world, LATENCY_SCENES, seed=8)
-    result: dict[str, Any] = {"sizes": {}}
+    result: dict[str, Any] = {"sizes": {}, "synthetic": {}}
+    for scenes, tokens in synthetic:
+        figures = synthetic_load(scenes, tokens)
+        result["synthetic"][f"{scenes}x{tokens}"] = figures
+        print(f"synthetic {scenes:,} scenes x {tokens} tokens: {figures}", flush=True)
+    if not sizes:
+        return _write(result)
     with tempfile.TemporaryDirectory(prefix="bench_restart_") as directory:
         work = Path(directory)
         log = work / "servers.log"
@@ -192,6 +280,10 @@ def main() -> dict:
                 flush=True,
             )
             path.unlink()
+    return _write(result)
+
+
+def _write(result: dict[str, Any]) -> dict[str, Any]:
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "restart.json").write_text(json.dumps(result, indent=2) + "\n")
     return result

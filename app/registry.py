@@ -300,9 +300,8 @@ def catch_up(session: Session, model: ModelRuntime) -> bool:
     if changes.version == model.version:
         return True
     fitted_at, training_count = session.execute(
-        select(
-            Model.fitted_at, select(func.count()).where(TrainingObject.model_id == model.id).scalar_subquery()
-        ).where(Model.id == model.id)
+        select(Model.fitted_at, select(func.count()).where(TrainingObject.model_id == model.id).scalar_subquery())
+        .where(Model.id == model.id)
     ).one()
     if fitted_at != model.fitted_at:
         row = model_repository.get_model(session, model.id)

@@ -128,7 +128,9 @@ def _start(settings: Settings) -> AppState:
         engine=engine,
         read_sessions=read_sessions,
         write_sessions=write_sessions,
-        registry=ModelRegistry(read_sessions, VocabularyLimits.from_settings(settings)),
+        registry=ModelRegistry(
+            read_sessions, VocabularyLimits.from_settings(settings), checkpoint_interval=settings.checkpoint_interval
+        ),
         hub=hub,
         feed=SceneFeed(hub, engine, read_sessions),
     )

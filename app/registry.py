@@ -33,8 +33,10 @@ from sqlalchemy.orm import Session, sessionmaker
 from app.errors import ModelNotFound, ModelUnavailable, is_storage_failure, storage_error, storage_failure_reason
 from app.services.limits import VocabularyLimits
 from app.services.perception import Perception
+from app.settings import DEFAULT_CHECKPOINT_INTERVAL
 from core.concept_web import ConceptWeb
 from core.context.incremental import ContextModelState, IncrementalLDA
+from core.errors import InvalidInputError
 from core.planning import BehaviourEffects, Workspace, learn_effects
 from core.prototypes.prototypes import PrototypeSet
 from core.vocabulary import Vocabulary
@@ -90,6 +92,8 @@ class ModelRuntime:
     """The stored version whose state failed its check: reloaded again only once that version moves."""
     vocabulary_limits: VocabularyLimits = field(default_factory=VocabularyLimits.defaults)
     """How far scenes may grow the vocabulary: the registry's, set when the model enters it."""
+    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL
+    """Every this-many scenes the model's checkpoint is rewritten (the registry's, as above)."""
 
     @classmethod
     def from_row(
@@ -207,25 +211,10 @@ def training_effects(session: Session, model_id: str) -> tuple[list[list[float]]
 
 
 def load_runtime(session: Session, row: Model) -> ModelRuntime:
-    """A model exactly as stored: LDA counts, assignments and random state included."""
-    stored = lda_repository.load_corpus(session, row.id)
-    hyperparameters = dict(row.hyperparameters)
-    n_kw = np.zeros((stored.context_count, len(stored.word_names)), dtype=np.int32)
-    if stored.count_entries.size:
-        contexts, words, counts = stored.count_entries.T
-        n_kw[contexts, words] = counts
-    incremental_lda = IncrementalLDA.from_state(
-        ContextModelState(
-            hyperparameters=hyperparameters,
-            vocabulary=stored.word_names,
-            n_contexts=stored.context_count,
-            words=stored.token_words,
-            assignments=stored.token_contexts,
-            doc_offsets=stored.doc_offsets,
-            n_kw=n_kw,
-            rng_state=stored.state["rng_state"],
-        )
-    )
+    """A model exactly as stored: LDA counts, assignments and random state included, from its latest
+    checkpoint and the rows written since (docs/scaling.md, "Checkpoints")."""
+    stored = lda_repository.load_start(session, row.id)
+    incremental_lda = stored_incremental_lda(stored, dict(row.hyperparameters))
     vectors, behaviours, training_count = training_effects(session, row.id)
     runtime = ModelRuntime.from_row(
         row,
@@ -237,6 +226,66 @@ def load_runtime(session: Session, row: Model) -> ModelRuntime:
     )
     runtime.version = stored.version
     return runtime
+
+
+def stored_incremental_lda(stored: lda_repository.StoredStart, hyperparameters: dict[str, Any]) -> IncrementalLDA:
+    """The Incremental-LDA of a start: the checkpoint's arrays, then the tail caught up on top (the
+    same catch-up as another process's writes), then the whole of n_kw checked against the
+    stored n_kw entries. Without a checkpoint the tail is every token, read as the arrays."""
+    base = stored.checkpoint
+    if base is None:
+        tail = stored.tail
+        scene_lengths = np.bincount(tail[:, 1], minlength=stored.scene_count)
+        base = lda_repository.StoredCheckpoint(
+            version=stored.version,
+            context_count=stored.context_count,
+            word_count=len(stored.word_names),
+            words=tail[:, 2].astype(np.int32),
+            contexts=tail[:, 3].astype(np.int32),
+            doc_offsets=np.concatenate([[0], np.cumsum(scene_lengths)]).astype(np.int32),
+        )
+        tail = tail[:0]
+    else:
+        tail = stored.tail
+    n_contexts, n_words = base.context_count, base.word_count
+    incremental_lda = IncrementalLDA.from_state(
+        ContextModelState(
+            hyperparameters=hyperparameters,
+            vocabulary=stored.word_names[:n_words],
+            n_contexts=n_contexts,
+            words=base.words,
+            assignments=base.contexts,
+            doc_offsets=base.doc_offsets,
+            n_kw=_counts(base.words, base.contexts, n_contexts, n_words),
+            rng_state=stored.state["rng_state"],
+        )
+    )
+    incremental_lda.catch_up(
+        new_words=stored.word_names[n_words:],
+        n_contexts=stored.context_count,
+        tokens=tail,
+        count_entries=np.zeros((0, 3), dtype=np.int64),
+        scene_count=stored.scene_count,
+        rng_state=stored.state["rng_state"],
+    )
+    state = incremental_lda.lda_state
+    n_kw = np.zeros((stored.context_count, len(stored.word_names)), dtype=np.int64)
+    entries = stored.count_entries
+    if entries.size:
+        if entries[:, 0].max() >= n_kw.shape[0] or entries[:, 1].max() >= n_kw.shape[1]:
+            raise InvalidInputError("state.n_kw", "an entry names a context or concept the model does not have")
+        n_kw[entries[:, 0], entries[:, 1]] = entries[:, 2]
+    if not np.array_equal(n_kw, state.n_kw):
+        raise InvalidInputError("state.n_kw", "differs from the counts of the stored assignments")
+    return incremental_lda
+
+
+def _counts(words: np.ndarray, contexts: np.ndarray, n_contexts: int, n_words: int) -> np.ndarray:
+    """n_kw (K × |W|) of these assignments."""
+    if words.size and (contexts.max() >= n_contexts or words.max() >= n_words or min(contexts.min(), words.min()) < 0):
+        raise InvalidInputError("state", "a token names a context or concept outside the checkpoint's")
+    flat = np.bincount(contexts.astype(np.int64) * n_words + words, minlength=n_contexts * n_words)
+    return flat.reshape(n_contexts, n_words).astype(np.int32)
 
 
 def catch_up(session: Session, model: ModelRuntime) -> bool:
@@ -284,9 +333,14 @@ class ModelRegistry:
     """
 
     def __init__(
-        self, read_sessions: sessionmaker[Session], vocabulary_limits: VocabularyLimits | None = None
+        self,
+        read_sessions: sessionmaker[Session],
+        vocabulary_limits: VocabularyLimits | None = None,
+        *,
+        checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
     ) -> None:
         self.vocabulary_limits = vocabulary_limits or VocabularyLimits.defaults()
+        self.checkpoint_interval = checkpoint_interval
         self._models: dict[str, ModelRuntime] = {}
         self._lock = threading.Lock()
         self._read_sessions = read_sessions
@@ -302,6 +356,7 @@ class ModelRegistry:
 
     def add(self, model: ModelRuntime) -> None:
         model.vocabulary_limits = self.vocabulary_limits
+        model.checkpoint_interval = self.checkpoint_interval
         with self._lock:
             self._models[model.id] = model
 
@@ -352,6 +407,7 @@ class ModelRegistry:
                         raise ModelNotFound(model_id)
                     model = _loaded_or_unavailable(session, row)
                 model.vocabulary_limits = self.vocabulary_limits
+                model.checkpoint_interval = self.checkpoint_interval
                 self._models[model_id] = model
         if model.unavailable is not None:
             raise ModelUnavailable(model.id, model.unavailable)

@@ -22,6 +22,10 @@ def normalise_origin(origin: str) -> str:
     return origin.strip().rstrip("/").lower()
 
 
+#: Scenes between two checkpoints of a model (docs/scaling.md, "Checkpoints", says why this many).
+DEFAULT_CHECKPOINT_INTERVAL = 10_000
+
+
 class Settings(BaseSettings):
     """Deployment settings; ``CONTEXTWEB_DATABASE_URL`` etc. override the defaults."""
 
@@ -83,6 +87,12 @@ class Settings(BaseSettings):
     )
     rate_limit_burst: int = Field(
         50, ge=1, le=1_000_000, description="Writes a client may make at once before the rate applies."
+    )
+    checkpoint_interval: int = Field(
+        DEFAULT_CHECKPOINT_INTERVAL,
+        ge=1,
+        description="Every this-many scenes a model's checkpoint is rewritten: a start reads it and at most "
+        'this many scenes\' rows (docs/scaling.md, "Checkpoints", has the trade-off).',
     )
     sqlite_busy_timeout_ms: int = Field(
         5_000,

@@ -5,8 +5,11 @@ adds its ``scene`` row and its ``token`` rows (word id and context assignment),
 rewrites the ``context_word_count`` entries (n_kw of Eq. 5) and the tokens whose
 assignment the scene's sweeps changed, and replaces the small
 ``incremental_lda_state`` row (K, scene count, random state) — all in the
-scene's transaction. The invariant: for every model, ``context_word_count``
-equals the counts of ``token`` rows grouped by (context, word).
+scene's transaction; every ``checkpoint_interval``-th scene also replaces the
+model's ``incremental_lda_checkpoint`` (the whole corpus as packed arrays). The
+invariants: for every model, ``context_word_count`` equals the counts of
+``token`` rows grouped by (context, word), and the checkpoint equals the token
+rows not written since its version.
 """
 
 from __future__ import annotations
@@ -23,15 +26,17 @@ from sqlalchemy import (
     ForeignKey,
     Index,
     Integer,
+    LargeBinary,
     MetaData,
     String,
-    Text,
     UniqueConstraint,
 )
 from sqlalchemy.dialects.postgresql import JSONB
 from sqlalchemy.engine import Dialect
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 from sqlalchemy.types import TypeDecorator
+
+from storage.compression import compress_answer, decompress_answer
 
 NAMING_CONVENTION = {
     "ix": "ix_%(column_0_label)s",
@@ -62,6 +67,19 @@ class UtcDateTime(TypeDecorator[datetime]):
         if value is None or value.tzinfo is not None:
             return value
         return value.replace(tzinfo=UTC)
+
+
+class CompressedText(TypeDecorator[str]):
+    """Text stored deflated with a preset dictionary (storage/compression.py), read back byte for byte."""
+
+    impl = LargeBinary
+    cache_ok = True
+
+    def process_bind_param(self, value: str | None, dialect: Dialect) -> bytes | None:
+        return None if value is None else compress_answer(value)
+
+    def process_result_value(self, value: bytes | None, dialect: Dialect) -> str | None:
+        return None if value is None else decompress_answer(bytes(value))
 
 
 class Base(DeclarativeBase):
@@ -131,8 +149,9 @@ class Scene(Base):
     context_count: Mapped[int] = mapped_column(Integer)
     map_context: Mapped[int] = mapped_column(Integer)
     context_posterior: Mapped[list[Any]]
-    answer: Mapped[str] = mapped_column(Text)
-    """The JSON body the scene was acknowledged with, byte for byte (replayed as is)."""
+    answer: Mapped[str] = mapped_column("answer_zlib", CompressedText)
+    """The JSON body the scene was acknowledged with, byte for byte (replayed as is); stored
+    compressed (alembic 0005: 4.1 KB of JSON a scene took more than half of the database)."""
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
 
 
@@ -145,7 +164,10 @@ class Token(Base):
     """
 
     __tablename__ = "token"
-    __table_args__ = (Index("ix_token_model_id_version", "model_id", "version"),)
+    __table_args__ = (
+        Index("ix_token_model_id_version", "model_id", "version"),
+        {"sqlite_with_rowid": False},  # clustered on its key: no second copy of it (alembic 0005)
+    )
 
     model_id: Mapped[str] = mapped_column(_model_fk(), primary_key=True)
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
@@ -154,6 +176,28 @@ class Token(Base):
     context: Mapped[int] = mapped_column(Integer)
     version: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
     """The model version of the write that last inserted or reassigned the token."""
+
+
+class IncrementalLdaCheckpoint(Base):
+    """The latest checkpoint of a model's corpus: every token's word and context at one version.
+
+    Written inside the transaction of every ``checkpoint_interval``-th scene, so that a start
+    loads it and only the rows written since (``token.version`` > its version), not the whole
+    token table (docs/scaling.md, "Checkpoints"). Derived: ``contextweb models repair`` rebuilds it.
+    """
+
+    __tablename__ = "incremental_lda_checkpoint"
+
+    model_id: Mapped[str] = mapped_column(_model_fk(), primary_key=True)
+    version: Mapped[int] = mapped_column(BigInteger)
+    """The model's version the arrays equal."""
+    scene_count: Mapped[int] = mapped_column(Integer)
+    token_count: Mapped[int] = mapped_column(Integer)
+    context_count: Mapped[int] = mapped_column(Integer)
+    word_count: Mapped[int] = mapped_column(Integer)
+    arrays: Mapped[bytes] = mapped_column(LargeBinary)
+    """``words``, ``contexts`` (per token) and ``scene_lengths``, packed (storage/compression.py)."""
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
 
 
 class ContextWordCount(Base):

@@ -19,6 +19,7 @@ Then under the model's write lock, :func:`learn_scene`:
 4. Incremental-LDA learns the scene's active concepts (in memory);
 5. everything the update changed is written in this transaction: scene row with
    its answer, tokens, reassigned tokens, n_kw entries, new words, random state;
+   every ``checkpoint_interval``-th scene also the model's checkpoint;
 6. after the commit: the summary is published. The stream learns of the scene from
    the database, on every process (app/feed.py).
 """
@@ -48,7 +49,7 @@ from storage.database import pipelined
 from storage.repositories import contexts as context_repository
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import scenes as scene_repository
-from storage.repositories.incremental_lda import SceneChanges, reassigned_rows
+from storage.repositories.incremental_lda import SceneChanges, StoredCheckpoint, reassigned_rows
 from storage.unit_of_work import after_commit
 
 
@@ -191,6 +192,19 @@ def _object_analysis(result: ObjectResult) -> ObjectAnalysis:
     )
 
 
+def _checkpoint(model: ModelRuntime, version: int) -> StoredCheckpoint:
+    """The model's corpus as it stands after the write ``version`` (its checkpoint)."""
+    state = model.incremental_lda.lda_state
+    return StoredCheckpoint(
+        version=version,
+        context_count=state.n_contexts,
+        word_count=state.vocab_size,
+        words=state.words,
+        contexts=state.assignments,
+        doc_offsets=state.doc_offsets,
+    )
+
+
 def _answer(
     model: ModelRuntime,
     update: SceneUpdate,
@@ -275,6 +289,8 @@ def _save_rows(
             version=version,
         ),
     )
+    if (update.scene_index + 1) % model.checkpoint_interval == 0:
+        lda_repository.save_checkpoint(session, model.id, _checkpoint(model, version))
     scene_repository.add_scene(
         session,
         model.id,

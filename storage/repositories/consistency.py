@@ -4,14 +4,18 @@ The truth of a model is its ``scene`` rows, its ``token`` rows (word and context
 assignment of every word occurrence), its ``word`` rows and the random state in
 ``incremental_lda_state.state``. What is derived from them can be rebuilt:
 ``context_word_count`` (n_kw, the token counts grouped by context and word),
-``incremental_lda_state.scene_count`` and ``context_count``. :func:`check_model`
+``incremental_lda_state.scene_count`` and ``context_count``, and the model's
+checkpoint (``incremental_lda_checkpoint``: every token's word and context at
+one version, which must equal the token rows not written since that version).
+:func:`check_model`
 names every broken invariant; :func:`repair_model` rebuilds the derived rows
 and bumps the model's version, so that serving processes reload it. A problem in
 the truth itself (a gap in the token ids, a scene without tokens, a missing
 state row, a bad random state …) cannot be repaired from the rows: then
 :func:`repair_model` changes nothing and raises :class:`UnrepairableModelError`.
 
-The checks are aggregate queries: no model's tokens are loaded into Python.
+The checks are aggregate queries, except the checkpoint's: its arrays are
+compared with the token rows' numbers, read once through the driver.
 """
 
 from __future__ import annotations
@@ -24,7 +28,23 @@ import numpy as np
 from sqlalchemy import ColumnElement, Row, delete, func, literal_column, select, text, union_all, update
 from sqlalchemy.orm import Session
 
-from storage.models import ContextWordCount, IncrementalLdaState, Model, Scene, Token, Word, utc_now
+from storage.database import DriverStatements
+from storage.models import (
+    ContextWordCount,
+    IncrementalLdaCheckpoint,
+    IncrementalLdaState,
+    Model,
+    Scene,
+    Token,
+    Word,
+    utc_now,
+)
+from storage.repositories.incremental_lda import (
+    DamagedCheckpointError,
+    StoredCheckpoint,
+    load_checkpoint,
+    save_checkpoint,
+)
 
 
 @dataclass(frozen=True)
@@ -78,6 +98,7 @@ def find_problems(session: Session, model_id: str) -> list[Problem]:
     else:
         max_contexts = model.hyperparameters.get("max_contexts") if isinstance(model.hyperparameters, dict) else None
         problems += _state_problems(session, model_id, state, scenes.count, words.count, max_contexts)
+        problems += _checkpoint_problems(session, model_id, state.version)
     return problems
 
 
@@ -126,6 +147,11 @@ def repair_model(session: Session, model_id: str) -> list[str]:
         changes.append(f"incremental_lda_state.scene_count: {state.scene_count} -> {scene_count}")
     if context_count != state.context_count:
         changes.append(f"incremental_lda_state.context_count: {state.context_count} -> {context_count}")
+    if _has_checkpoint(session, model_id):
+        save_checkpoint(
+            session, model_id, _checkpoint_of_tokens(session, model_id, new_version, context_count, word_count)
+        )
+        changes.append(f"incremental_lda_checkpoint: rebuilt from the token rows at version {new_version}")
     changes.append(f"incremental_lda_state.version: {state.version} -> {new_version}")
     return changes
 
@@ -183,6 +209,97 @@ def _rng_state_problem(state: Any) -> str | None:
     except (TypeError, ValueError, KeyError, OverflowError) as error:
         return f"rng_state is not a PCG64 generator state ({type(error).__name__}: {error})"
     return None
+
+
+# The checkpoint.
+
+
+def _checkpoint_problems(session: Session, model_id: str, version: int) -> list[Problem]:
+    """The checkpoint against the token rows: every token it covers has its word, and its context
+    unless the token row was written after the checkpoint's version (then it moved since)."""
+    try:
+        checkpoint = load_checkpoint(session, model_id)
+    except DamagedCheckpointError as error:
+        return [Problem(str(error), repairable=True)]
+    if checkpoint is None:
+        return []
+    if checkpoint.version > version:
+        return [
+            Problem(
+                f"incremental_lda_checkpoint is at version {checkpoint.version}, above the model's "
+                f"(incremental_lda_state.version {version})",
+                repairable=True,
+            )
+        ]
+    rows = _token_columns(session, model_id, checkpoint.token_count)
+    if rows.shape[0] != checkpoint.token_count or not np.array_equal(rows[:, 0], np.arange(rows.shape[0])):
+        return [
+            Problem(
+                f"incremental_lda_checkpoint covers {checkpoint.token_count} tokens, but token ids "
+                f"0..{checkpoint.token_count - 1} are not all stored",
+                repairable=True,
+            )
+        ]
+    scenes = np.repeat(np.arange(checkpoint.scene_count), np.diff(checkpoint.doc_offsets))
+    problems = []
+    for what, differs, stored, saved in (
+        ("scene", rows[:, 1] != scenes, rows[:, 1], scenes),
+        ("word", rows[:, 2] != checkpoint.words, rows[:, 2], checkpoint.words),
+        (
+            "context",
+            (rows[:, 3] != checkpoint.contexts) & (rows[:, 4] <= checkpoint.version),
+            rows[:, 3],
+            checkpoint.contexts,
+        ),
+    ):
+        if differs.any():
+            first = int(np.flatnonzero(differs)[0])
+            problems.append(
+                Problem(
+                    f"incremental_lda_checkpoint (version {checkpoint.version}) differs from the token rows in the "
+                    f"{what} of {_count(int(differs.sum()), 'token')}, first token {first} "
+                    f"(checkpoint {int(saved[first])}, token row {int(stored[first])})",
+                    repairable=True,
+                )
+            )
+    return problems
+
+
+def _token_columns(session: Session, model_id: str, count: int) -> np.ndarray:
+    """(id, scene, word, context, version) of the model's tokens with id < ``count``, by id (int64)."""
+    rows = DriverStatements(session).fetchall(_SELECT_TOKEN_COLUMNS, (model_id, count))
+    return np.array(rows, dtype=np.int64).reshape(-1, 5)
+
+
+_SELECT_TOKEN_COLUMNS = (
+    "SELECT id, scene_id, word_id, context, version FROM token WHERE model_id = ? AND id < ? ORDER BY id"
+)
+
+
+def _has_checkpoint(session: Session, model_id: str) -> bool:
+    return (
+        session.execute(
+            select(IncrementalLdaCheckpoint.model_id).where(IncrementalLdaCheckpoint.model_id == model_id)
+        ).first()
+        is not None
+    )
+
+
+def _checkpoint_of_tokens(
+    session: Session, model_id: str, version: int, context_count: int, word_count: int
+) -> StoredCheckpoint:
+    """The checkpoint of the model's token rows as they stand (the truth), at ``version``."""
+    rows = _token_columns(session, model_id, np.iinfo(np.int32).max)
+    scene_count = _id_range(session, Scene.id, Scene.model_id, model_id).count
+    lengths = np.bincount(rows[:, 1], minlength=scene_count)
+    return StoredCheckpoint(
+        version=version,
+        context_count=context_count,
+        word_count=word_count,
+        words=rows[:, 2].astype(np.int32),
+        contexts=rows[:, 3].astype(np.int32),
+        doc_offsets=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int32),
+    )
 
 
 # Dense ids.

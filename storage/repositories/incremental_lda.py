@@ -1,9 +1,13 @@
-"""The Incremental-LDA state of a model, written scene by scene and read back whole on start.
+"""The Incremental-LDA state of a model, written scene by scene and read back on start.
 
 :func:`save_scene` writes everything one learned scene changed — its tokens,
 the tokens its sweeps reassigned, the n_kw entries that moved, new words and
 the scalar state — in the caller's transaction (the scene's own), straight
-through the driver (see the statements below).
+through the driver (see the statements below). :func:`save_checkpoint` replaces
+the model's checkpoint (every token's word and context at one version, packed);
+:func:`load_start` reads what a start needs: the checkpoint and only the token
+rows written since it, so a start costs the same at any corpus size
+(docs/scaling.md, "Checkpoints").
 """
 
 from __future__ import annotations
@@ -13,11 +17,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sqlalchemy import func, insert, select
+from sqlalchemy import delete, func, insert, select
 from sqlalchemy.orm import Session
 
+from storage.compression import pack_arrays, unpack_arrays
 from storage.database import DriverStatements
-from storage.models import ContextWordCount, IncrementalLdaState, Token, Word, utc_now
+from storage.models import ContextWordCount, IncrementalLdaCheckpoint, IncrementalLdaState, Token, Word, utc_now
 
 
 @dataclass(frozen=True)
@@ -50,6 +55,51 @@ class StoredChanges:
     """(id, scene, word, context) rows of the tokens inserted or reassigned since, by id (int64)."""
     count_entries: np.ndarray
     """(context, word, count) rows of the n_kw entries changed since (int64)."""
+
+
+@dataclass(frozen=True)
+class StoredCheckpoint:
+    """Every token's word and context at one version of the model (a checkpoint)."""
+
+    version: int
+    context_count: int
+    word_count: int
+    words: np.ndarray
+    """Concept id of every token, scenes in order (int32)."""
+    contexts: np.ndarray
+    """Context of every token at :attr:`version` (int32)."""
+    doc_offsets: np.ndarray
+    """Scene d owns tokens doc_offsets[d]:doc_offsets[d + 1] (int32)."""
+
+    @property
+    def scene_count(self) -> int:
+        return int(self.doc_offsets.shape[0]) - 1
+
+    @property
+    def token_count(self) -> int:
+        return int(self.words.shape[0])
+
+
+class DamagedCheckpointError(ValueError):
+    """The stored checkpoint cannot be decoded, or its arrays contradict its own header."""
+
+
+@dataclass(frozen=True)
+class StoredStart:
+    """What a start loads: the words, the latest checkpoint and the rows written since it."""
+
+    word_names: list[str]
+    word_kinds: list[str | None]
+    checkpoint: StoredCheckpoint | None
+    """None before the first checkpoint: then :attr:`tail` holds every token."""
+    tail: np.ndarray
+    """(id, scene, word, context) rows of the tokens written after the checkpoint, by id (int64)."""
+    count_entries: np.ndarray
+    """Every stored n_kw entry, (context, word, count) rows (int64): the whole of n_kw is checked on load."""
+    scene_count: int
+    context_count: int
+    state: dict[str, Any]
+    version: int
 
 
 @dataclass(frozen=True)
@@ -217,6 +267,86 @@ def load_corpus(session: Session, model_id: str) -> StoredCorpus:
         context_count=state.context_count,
         state=dict(state.state),
         version=state.version,
+    )
+
+
+def load_start(session: Session, model_id: str) -> StoredStart:
+    """The model's latest checkpoint and the token rows written since it, with every word and n_kw
+    entry (read it in one snapshot). Raises LookupError for a model without state and
+    :class:`DamagedCheckpointError` for a checkpoint that cannot be read."""
+    state = session.get(IncrementalLdaState, model_id)
+    if state is None:
+        raise LookupError(f"model {model_id!r} has no Incremental-LDA state")
+    words = session.execute(select(Word.name, Word.kind).where(Word.model_id == model_id).order_by(Word.id)).all()
+    checkpoint = load_checkpoint(session, model_id)
+    driver = DriverStatements(session)
+    since = -1 if checkpoint is None else checkpoint.version  # rows from before migration 0002 carry version 0
+    return StoredStart(
+        word_names=[name for name, _ in words],
+        word_kinds=[kind for _, kind in words],
+        checkpoint=checkpoint,
+        tail=_int_rows(driver, _SELECT_TOKENS_SINCE, (model_id, since), 4),
+        count_entries=_int_rows(driver, _SELECT_COUNTS, (model_id,), 3),
+        scene_count=state.scene_count,
+        context_count=state.context_count,
+        state=dict(state.state),
+        version=state.version,
+    )
+
+
+def save_checkpoint(session: Session, model_id: str, checkpoint: StoredCheckpoint) -> None:
+    """Replace the model's checkpoint (in the caller's transaction: the scene's, or a repair's)."""
+    lengths = np.diff(checkpoint.doc_offsets)
+    blob = pack_arrays({"words": checkpoint.words, "contexts": checkpoint.contexts, "scene_lengths": lengths})
+    session.execute(delete(IncrementalLdaCheckpoint).where(IncrementalLdaCheckpoint.model_id == model_id))
+    session.execute(
+        insert(IncrementalLdaCheckpoint).values(
+            model_id=model_id,
+            version=checkpoint.version,
+            scene_count=checkpoint.scene_count,
+            token_count=checkpoint.token_count,
+            context_count=checkpoint.context_count,
+            word_count=checkpoint.word_count,
+            arrays=blob,
+            created_at=utc_now(),
+        )
+    )
+
+
+def load_checkpoint(session: Session, model_id: str) -> StoredCheckpoint | None:
+    """The model's checkpoint (None when it has none); :class:`DamagedCheckpointError` when its blob
+    cannot be decoded or disagrees with the row's own counts."""
+    row = session.execute(
+        select(
+            IncrementalLdaCheckpoint.version,
+            IncrementalLdaCheckpoint.scene_count,
+            IncrementalLdaCheckpoint.token_count,
+            IncrementalLdaCheckpoint.context_count,
+            IncrementalLdaCheckpoint.word_count,
+            IncrementalLdaCheckpoint.arrays,
+        ).where(IncrementalLdaCheckpoint.model_id == model_id)
+    ).first()
+    if row is None:
+        return None
+    try:
+        arrays = unpack_arrays(bytes(row.arrays))
+        words, contexts, lengths = arrays["words"], arrays["contexts"], arrays["scene_lengths"]
+    except (ValueError, KeyError) as error:
+        raise DamagedCheckpointError(f"incremental_lda_checkpoint.arrays cannot be read: {error}") from error
+    if not (words.shape == contexts.shape == (row.token_count,) and lengths.shape == (row.scene_count,)):
+        raise DamagedCheckpointError(
+            f"incremental_lda_checkpoint holds {words.shape[0]} words, {contexts.shape[0]} contexts and "
+            f"{lengths.shape[0]} scenes, its row says {row.token_count} tokens and {row.scene_count} scenes"
+        )
+    if int(lengths.sum(dtype=np.int64)) != row.token_count or (lengths.size and lengths.min() < 1):
+        raise DamagedCheckpointError("incremental_lda_checkpoint's scene lengths do not add up to its tokens")
+    return StoredCheckpoint(
+        version=int(row.version),
+        context_count=int(row.context_count),
+        word_count=int(row.word_count),
+        words=words.astype(np.int32),
+        contexts=contexts.astype(np.int32),
+        doc_offsets=np.concatenate([[0], np.cumsum(lengths, dtype=np.int64)]).astype(np.int32),
     )
 
 

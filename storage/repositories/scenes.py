@@ -9,6 +9,7 @@ from typing import Any, NamedTuple
 from sqlalchemy import Row, func, select
 from sqlalchemy.orm import Session
 
+from storage.compression import decompress_answer
 from storage.database import DriverStatements
 from storage.models import Scene, utc_now
 
@@ -39,7 +40,7 @@ def add_scene(
             context_count,
             map_context,
             driver.bind(_SCENE.c.context_posterior)(context_posterior),
-            answer,
+            driver.bind(_SCENE.c.answer_zlib)(answer),
             driver.bind(_SCENE.c.created_at)(created_at or utc_now()),
         ),
     )
@@ -48,7 +49,7 @@ def add_scene(
 _SCENE = Scene.__table__
 _INSERT_SCENE = (
     "INSERT INTO scene (model_id, id, idempotency_key, request_hash, context_count, map_context, "
-    "context_posterior, answer, created_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)"
+    "context_posterior, answer_zlib, created_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)"
 )
 
 
@@ -69,10 +70,10 @@ def find_by_idempotency_key(session: Session, model_id: str, key: str) -> Stored
     keyed scene (a robot's bridge keys them all), and the ORM's cost on PostgreSQL (docs/benchmarks.md)
     was not worth it."""
     row = DriverStatements(session).fetchone(_FIND_BY_KEY, (model_id, key))
-    return None if row is None else StoredAnswer(*row)
+    return None if row is None else StoredAnswer(row[0], row[1], decompress_answer(bytes(row[2])))
 
 
-_FIND_BY_KEY = "SELECT id, request_hash, answer FROM scene WHERE model_id = ? AND idempotency_key = ?"
+_FIND_BY_KEY = "SELECT id, request_hash, answer_zlib FROM scene WHERE model_id = ? AND idempotency_key = ?"
 
 
 def page_scenes(session: Session, model_id: str, *, offset: int, limit: int) -> tuple[Sequence[Row[Any]], int]:

@@ -1,0 +1,129 @@
+"""How bulky values are stored compactly: scene answers and Incremental-LDA checkpoints.
+
+Answers (``scene.answer_zlib``) are the acknowledged ``SceneRead`` JSON, deflated
+with a preset dictionary (zlib's ``zdict``): an answer is ~4 KB of JSON whose
+keys and concept names repeat in every scene, and a short stream on its own
+cannot learn them, so the dictionary holds them once, for every answer. The
+stored bytes are a format byte followed by the zlib stream; the format byte
+names the dictionary, which therefore never changes once written: a better one
+gets a new format byte, and old rows keep decoding with theirs.
+
+zlib rather than zstd: it is in the standard library, and zstandard is not a
+dependency of the project (a preset dictionary gives zlib most of zstd's gain
+on short texts; measured in bench/bench_restart.py: bytes per scene).
+
+Checkpoints are numpy arrays in the ``.npy`` format of :func:`numpy.savez`,
+each in the smallest integer type that holds it, deflated at level 1: a
+checkpoint is written inside a scene's transaction, so speed matters more
+than the last percent of size.
+"""
+
+from __future__ import annotations
+
+import io
+import zlib
+
+import numpy as np
+
+#: Format byte of :data:`ANSWER_DICTIONARY_1`.
+_ANSWER_FORMAT_1 = 1
+
+#: The paper's 29 concepts in the vocabulary's order, as answers list them (frozen with the dictionary).
+_PAPER_CONCEPTS_1 = [
+    "box",
+    "ball",
+    "cylinder",
+    "cup",
+    "plate",
+    "tool",
+    "hard",
+    "soft",
+    "noisy",
+    "silent",
+    "tall",
+    "short",
+    "thin",
+    "thick",
+    "round",
+    "edgy",
+    "grasp",
+    "push_left",
+    "push_right",
+    "push_forward",
+    "push_backward",
+    "move_left",
+    "move_right",
+    "move_forward",
+    "move_backward",
+    "drop",
+    "throw",
+    "knock_down",
+    "shake",
+]
+
+
+def _concept_block(key: str, value: str) -> str:
+    return f'"{key}":{{' + ",".join(f'"{name}":{value}' for name in _PAPER_CONCEPTS_1) + "}"
+
+
+#: The preset dictionary of format 1: one concept-level answer's skeleton (keys, the paper's
+#: concepts, typical values), most frequent parts last (deflate reaches the dictionary's end with
+#: the shortest distances). FROZEN: stored answers decode with it (see the module's docstring).
+ANSWER_DICTIONARY_1 = (
+    '"perception":null,"web":null,"in_context":null},{"level":"concepts",'
+    '{"model_id":"","scene_id":0,"learned":true,"context_count":3,"previous_context_count":3,'
+    '"context_posterior":[0.0,0.0,0.0],"map_context":0,"map_context_label":null,"objects":['
+    '{"level":"concepts","active_concepts":['
+    + ",".join(f'"{name}"' for name in _PAPER_CONCEPTS_1)
+    + "],"
+    + _concept_block("perception", "0.0")
+    + ","
+    + _concept_block("web", "0.9999")
+    + ","
+    + _concept_block("in_context", "0.999")
+    + '}],"created_at":"2026-12-02T00:00:00.000000Z"}'
+).encode()
+
+
+def compress_answer(answer: str) -> bytes:
+    """A scene's answer as stored: the format byte, then the zlib stream with the preset dictionary."""
+    compressor = zlib.compressobj(level=6, zdict=ANSWER_DICTIONARY_1)
+    return bytes([_ANSWER_FORMAT_1]) + compressor.compress(answer.encode()) + compressor.flush()
+
+
+def decompress_answer(stored: bytes) -> str:
+    """The answer exactly as it was acknowledged (byte for byte)."""
+    if not stored or stored[0] != _ANSWER_FORMAT_1:
+        raise ValueError(f"unknown stored answer format {stored[:1]!r}")
+    decompressor = zlib.decompressobj(zdict=ANSWER_DICTIONARY_1)
+    data = decompressor.decompress(stored[1:]) + decompressor.flush()
+    return data.decode()
+
+
+def pack_arrays(arrays: dict[str, np.ndarray]) -> bytes:
+    """Integer arrays as one deflated ``.npz`` blob, each in the smallest type that holds its values."""
+    buffer = io.BytesIO()
+    np.savez(buffer, allow_pickle=False, **{name: _narrowest(array) for name, array in arrays.items()})
+    return zlib.compress(buffer.getvalue(), 1)
+
+
+def unpack_arrays(blob: bytes) -> dict[str, np.ndarray]:
+    """The arrays of :func:`pack_arrays`, in their stored (narrow) types: the caller converts each once
+    (raises ValueError on a damaged blob)."""
+    try:
+        with np.load(io.BytesIO(zlib.decompress(blob)), allow_pickle=False) as archive:
+            return {name: archive[name] for name in archive.files}
+    except (zlib.error, OSError, KeyError, EOFError) as error:
+        raise ValueError(f"not a packed array blob ({type(error).__name__}: {error})") from error
+
+
+def _narrowest(array: np.ndarray) -> np.ndarray:
+    values = np.asarray(array)
+    if values.size == 0:
+        return values.astype(np.uint8)
+    low, high = int(values.min()), int(values.max())
+    for dtype in (np.uint8, np.uint16, np.uint32) if low >= 0 else (np.int8, np.int16, np.int32):
+        info = np.iinfo(dtype)
+        if info.min <= low and high <= info.max:
+            return values.astype(dtype)
+    return values.astype(np.int64)

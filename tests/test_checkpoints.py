@@ -1,0 +1,171 @@
+"""Checkpoints of the Incremental-LDA corpus (docs/scaling.md, "Checkpoints"): a start reads the latest
+checkpoint and the rows written since, and continues bit for bit like an uninterrupted run; a
+checkpoint that disagrees with the token rows is named by ``models check`` and rebuilt by ``repair``."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+from sqlalchemy import Engine, text
+
+from app.main import create_app
+from app.state import AppState
+from core.context.incremental import ContextModelState
+from storage.compression import pack_arrays, unpack_arrays
+from storage.database import create_database_engine, create_session_makers
+from storage.repositories import incremental_lda as lda_repository
+from storage.repositories.consistency import check_model, repair_model
+from storage.unit_of_work import unit_of_work
+from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, make_settings
+
+#: Small enough that 21 scenes cross three checkpoints (after scenes 6, 12 and 18) and leave a tail of 3,
+#: in which (seed 42, these scenes) a growth check moves tokens of checkpointed scenes.
+INTERVAL = 6
+
+
+def _post(client: TestClient, model_id: str, scenes: list[dict]) -> list[dict]:
+    """The answers without what differs between two models by design (their id, the time)."""
+    answers = []
+    for body in scenes:
+        response = client.post(f"/v1/models/{model_id}/scenes", json=body)
+        assert response.status_code == 201, response.text
+        answers.append({k: v for k, v in response.json().items() if k not in ("model_id", "created_at")})
+    return answers
+
+
+def _create(client: TestClient) -> str:
+    body = {"name": "robot", "seed": 42, "hyperparameters": FAST_HYPERPARAMETERS}
+    return client.post("/v1/models", json=body).json()["id"]
+
+
+def _memory(client: TestClient, model_id: str) -> ContextModelState:
+    state: AppState = client.app_state["contextweb"]
+    model = state.registry.get(model_id)
+    assert model is not None and model.unavailable is None, model and model.unavailable
+    model.incremental_lda.check_invariants()
+    return model.incremental_lda.to_state()
+
+
+def _same_state(state: ContextModelState, expected: ContextModelState) -> None:
+    assert state.n_contexts == expected.n_contexts and state.vocabulary == expected.vocabulary
+    for name in ("words", "assignments", "doc_offsets", "n_kw"):
+        assert np.array_equal(getattr(state, name), getattr(expected, name)), name
+    assert state.rng_state == expected.rng_state
+
+
+def _start(engine: Engine, model_id: str) -> lda_repository.StoredStart:
+    read, _ = create_session_makers(engine)
+    with read() as session:
+        return lda_repository.load_start(session, model_id)
+
+
+def test_a_checkpointed_model_restarts_from_checkpoint_and_tail_bit_for_bit(database_url: str) -> None:
+    scenes = concept_scenes(24, seed=3)
+    settings = make_settings(database_url, checkpoint_interval=INTERVAL)
+    with TestClient(create_app(settings)) as client:
+        uninterrupted = _create(client)
+        expected = _post(client, uninterrupted, scenes)
+        expected_state = _memory(client, uninterrupted)
+        restarted = _create(client)
+        before = _post(client, restarted, scenes[:21])
+
+    engine = create_database_engine(database_url)
+    try:
+        start = _start(engine, restarted)
+        assert start.checkpoint is not None and start.checkpoint.scene_count == 18
+        tail_scenes = set(start.tail[:, 1].tolist())
+        assert {18, 19, 20} <= tail_scenes, "the 3 scenes after the checkpoint are its tail"
+        assert min(tail_scenes) < 18, "tokens of checkpointed scenes reassigned since are in the tail"
+    finally:
+        engine.dispose()
+
+    with TestClient(create_app(settings)) as client:
+        after = _post(client, restarted, scenes[21:])
+        state = _memory(client, restarted)
+    assert before + after == expected
+    assert max(answer["context_count"] for answer in expected) > 1, "the scenes should make K grow"
+    _same_state(state, expected_state)
+
+
+def _corrupt_checkpoint(engine: Engine, model_id: str) -> tuple[int, int]:
+    """Move one checkpointed token that was not written since to another context; (token, context)."""
+    start = _start(engine, model_id)
+    checkpoint = start.checkpoint
+    assert checkpoint is not None
+    moved_since = set(start.tail[:, 0].tolist())
+    token = next(i for i in range(checkpoint.token_count) if i not in moved_since)
+    contexts = checkpoint.contexts.copy()
+    contexts[token] = (contexts[token] + 1) % checkpoint.context_count
+    _, write = create_session_makers(engine)
+    with unit_of_work(write) as session:
+        lda_repository.save_checkpoint(session, model_id, replace(checkpoint, contexts=contexts))
+    return token, int(contexts[token])
+
+
+def test_models_check_names_a_corrupted_checkpoint_and_repair_rebuilds_it(database_url: str) -> None:
+    settings = make_settings(database_url, checkpoint_interval=INTERVAL)
+    with TestClient(create_app(settings)) as client:
+        model_id = _create(client)
+        _post(client, model_id, concept_scenes(13, seed=4))
+        sound = _memory(client, model_id)
+    engine = create_database_engine(database_url)
+    read, write = create_session_makers(engine)
+    try:
+        token, _ = _corrupt_checkpoint(engine, model_id)
+        with read() as session:
+            problems = check_model(session, model_id)
+        assert len(problems) == 1 and "incremental_lda_checkpoint" in problems[0], problems
+        assert f"context of 1 token, first token {token}" in problems[0]
+
+        with TestClient(create_app(settings)) as client:  # the server starts; this model does not serve
+            response = client.get(f"/v1/models/{model_id}/contexts")
+            assert response.status_code == 503 and response.json()["error"] == "model_unavailable"
+
+        with unit_of_work(write) as session:
+            changes = repair_model(session, model_id)
+        assert any("incremental_lda_checkpoint: rebuilt" in change for change in changes), changes
+        with read() as session:
+            assert check_model(session, model_id) == []
+
+        with engine.begin() as connection:  # a blob that is not a checkpoint at all
+            connection.execute(
+                text("UPDATE incremental_lda_checkpoint SET arrays = :junk WHERE model_id = :m"),
+                {"junk": b"not a checkpoint", "m": model_id},
+            )
+        with read() as session:
+            problems = check_model(session, model_id)
+        assert len(problems) == 1 and "cannot be read" in problems[0], problems
+        with unit_of_work(write) as session:
+            repair_model(session, model_id)
+        with read() as session:
+            assert check_model(session, model_id) == []
+    finally:
+        engine.dispose()
+
+    with TestClient(create_app(settings)) as client:  # repaired: it loads, equal to the sound model
+        _same_state(_memory(client, model_id), sound)
+
+
+def test_packed_arrays_round_trip_in_the_narrowest_type_and_damage_is_refused() -> None:
+    arrays: dict[str, np.ndarray] = {
+        "empty": np.zeros(0, dtype=np.int32),
+        "small": np.array([0, 3, 255], dtype=np.int32),
+        "words": np.array([0, 256, 70_000], dtype=np.int64),
+        "signed": np.array([-1, 5, 2**40], dtype=np.int64),
+    }
+    unpacked = unpack_arrays(pack_arrays(arrays))
+    assert {name: value.dtype for name, value in unpacked.items()} == {
+        "empty": np.uint8,
+        "small": np.uint8,
+        "words": np.uint32,
+        "signed": np.int64,
+    }
+    for name, value in arrays.items():
+        assert np.array_equal(unpacked[name].astype(np.int64), value), name
+    blob = pack_arrays(arrays)
+    for damaged in (blob[: len(blob) // 2], b"junk", bytes(len(blob))):
+        with pytest.raises(ValueError):
+            unpack_arrays(damaged)

@@ -49,8 +49,9 @@ from app.schemas.scenes import SceneCreate
 from app.services import scenes as scene_service
 from app.settings import Settings
 from bench.bench_service import LeanClient, Server, _summary, concept_scenes
-from core.world import World
+from sim.world import World
 from storage.database import create_database_engine, create_session_makers, snapshot
+from storage.migrations import upgrade_to_head
 from storage.models import IncrementalLdaCheckpoint
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import models as model_repository
@@ -64,6 +65,16 @@ BATCH = 500
 LATENCY_SCENES = 300
 
 
+def _migrated(url: str) -> str:
+    """``url`` after what ``contextweb migrate`` does (the app refuses a database not at head)."""
+    engine = create_database_engine(url)
+    try:
+        upgrade_to_head(engine)
+    finally:
+        engine.dispose()
+    return url
+
+
 def _settings(url: str) -> Settings:
     values: dict[str, Any] = {"database_url": url, "environment": "development", "write_key": None, "read_key": None}
     return Settings(**values)
@@ -73,7 +84,7 @@ def build(path: Path, size: int, pool: list[dict[str, Any]]) -> tuple[str, float
     """A database at ``path`` with one trained model that has learned ``size`` scenes; (model id, seconds)."""
     url = f"sqlite:///{path}"
     world = World.paper(0)
-    with TestClient(create_app(_settings(url))) as client:
+    with TestClient(create_app(_settings(_migrated(url)))) as client:
         model_id = client.post("/v1/models", json={"name": "month", "seed": 0}).json()["id"]
         training = {"objects": synthetic_training_objects(world, seed=1)}
         client.post(f"/v1/models/{model_id}/training-objects", json=training).raise_for_status()
@@ -248,8 +259,7 @@ def main() -> dict:
         work = Path(directory)
         log = work / "servers.log"
         empty = work / "empty.sqlite3"
-        with TestClient(create_app(_settings(f"sqlite:///{empty}"))):
-            pass
+        _migrated(f"sqlite:///{empty}")
         server, seconds, empty_rss = serve(empty, log)
         server.stop()
         result["empty"] = {"restart_s": round(seconds, 2), "rss_bytes": empty_rss}

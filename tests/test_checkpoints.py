@@ -21,9 +21,11 @@ from storage.repositories.consistency import check_model, repair_model
 from storage.unit_of_work import unit_of_work
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, make_settings
 
-#: Small enough that 21 scenes cross three checkpoints (after scenes 6, 12 and 18) and leave a tail of 3,
-#: in which (seed 42, these scenes) a growth check moves tokens of checkpointed scenes.
-INTERVAL = 6
+#: Small enough that 24 scenes cross three checkpoints (after scenes 7, 14 and 21) and leave a tail of 3
+#: that ends with a scheduled growth check (FAST_HYPERPARAMETERS: after scenes 1, 2, 3, 6, 12, 24, ...),
+#: which moves tokens of its window (the last 6 scenes), checkpointed ones included.
+INTERVAL = 7
+RESTART_AFTER = 24
 
 
 def _post(client: TestClient, model_id: str, scenes: list[dict]) -> list[dict]:
@@ -63,27 +65,27 @@ def _start(engine: Engine, model_id: str) -> lda_repository.StoredStart:
 
 
 def test_a_checkpointed_model_restarts_from_checkpoint_and_tail_bit_for_bit(database_url: str) -> None:
-    scenes = concept_scenes(24, seed=3)
+    scenes = concept_scenes(RESTART_AFTER + 3, seed=3)
     settings = make_settings(database_url, checkpoint_interval=INTERVAL)
     with TestClient(create_app(settings)) as client:
         uninterrupted = _create(client)
         expected = _post(client, uninterrupted, scenes)
         expected_state = _memory(client, uninterrupted)
         restarted = _create(client)
-        before = _post(client, restarted, scenes[:21])
+        before = _post(client, restarted, scenes[:RESTART_AFTER])
 
     engine = create_database_engine(database_url)
     try:
         start = _start(engine, restarted)
-        assert start.checkpoint is not None and start.checkpoint.scene_count == 18
+        assert start.checkpoint is not None and start.checkpoint.scene_count == 21
         tail_scenes = set(start.tail[:, 1].tolist())
-        assert {18, 19, 20} <= tail_scenes, "the 3 scenes after the checkpoint are its tail"
-        assert min(tail_scenes) < 18, "tokens of checkpointed scenes reassigned since are in the tail"
+        assert {21, 22, 23} <= tail_scenes, "the 3 scenes after the checkpoint are its tail"
+        assert min(tail_scenes) < 21, "tokens of checkpointed scenes reassigned since are in the tail"
     finally:
         engine.dispose()
 
     with TestClient(create_app(settings)) as client:
-        after = _post(client, restarted, scenes[21:])
+        after = _post(client, restarted, scenes[RESTART_AFTER:])
         state = _memory(client, restarted)
     assert before + after == expected
     assert max(answer["context_count"] for answer in expected) > 1, "the scenes should make K grow"

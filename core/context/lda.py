@@ -24,6 +24,7 @@ import threading
 
 import numpy as np
 
+from core.context import _count_kernels as count_kernels
 from core.context import _gibbs_kernels as kernels
 from core.context import _partition_kernels as partition_kernels
 from core.context import _sparse_kernels as sparse_kernels
@@ -179,7 +180,7 @@ class LDAState:
         state._words[: state.n_tokens] = words
         state._z[: state.n_tokens] = assignments
         state._offsets[: state.n_documents + 1] = doc_offsets
-        state._token_scene[: state.n_tokens] = np.repeat(np.arange(state.n_documents), np.diff(doc_offsets))
+        count_kernels.fill_token_scenes(state.doc_offsets, state._token_scene)
         state.recount()
         return state
 
@@ -494,12 +495,10 @@ class LDAState:
         self._n_wk[:] = 0
         self._n_k[:] = 0
         self._n_dk[:] = 0
-        assigned = self.assignments >= 0
-        words, z = self.words[assigned], self.assignments[assigned]
-        docs = self._token_scene[: self.n_tokens][assigned]
-        self._n_wk[:v, :k] = np.bincount(words * k + z, minlength=v * k).reshape(v, k)
-        self._n_k[:k] = np.bincount(z, minlength=k)
-        self._n_dk[:d, :k] = np.bincount(docs * k + z, minlength=d * k).reshape(d, k)
+        token_scene = self._token_scene[: self.n_tokens]
+        count_kernels.count_assignments(
+            self.words, self.assignments, token_scene, self._n_wk[:v, :k], self._n_k[:k], self._n_dk[:d, :k]
+        )
 
     def invariant_violations(self) -> list[str]:
         """What is inconsistent between the assignments and the counts (empty when sound)."""

@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.cache/numba
 export MPLBACKEND ?= Agg
 
-.PHONY: run test install dev browser bench report clean constraints
+.PHONY: run test lint install dev browser bench report clean constraints
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -37,9 +37,16 @@ browser:
 	  { [ "$$(id -u)" = 0 ] && apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null; } || \
 	  echo "make: no chromium could be installed; the browser test will be skipped"
 
-# Two pytest workers: the slow tests mostly wait (servers starting, outages, recoveries), and two
-# workers take the suite from ~12 to ~7 minutes on a 2-core machine.
-test: $(VENV)/.installed-dev browser
+# Lint and types (configured in pyproject.toml): ruff's rules and format, then mypy on the packages and bench/.
+lint: $(VENV)/.installed-dev
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
+
+# Lint first: a finding fails in seconds, before the suite's minutes. Two pytest workers: the slow
+# tests mostly wait (servers starting, outages, recoveries), and two workers take the suite from
+# ~12 to ~7 minutes on a 2-core machine.
+test: lint browser
 	$(BIN)/python -m pytest -n 2
 
 bench: $(VENV)/.installed-dev

@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.cache/numba
 export MPLBACKEND ?= Agg
 
-.PHONY: run test install dev browser monitoring-tools bench report clean constraints
+.PHONY: run test lint install dev browser monitoring-tools bench report clean constraints
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -44,9 +44,16 @@ monitoring-tools:
 	  { [ "$$(id -u)" = 0 ] && apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends prometheus >/dev/null; } || \
 	  echo "make: no prometheus could be installed; the monitoring test will be skipped"
 
-# Two pytest workers: the slow tests mostly wait (servers starting, outages, recoveries), and two
-# workers take the suite from ~12 to ~7 minutes on a 2-core machine.
-test: $(VENV)/.installed-dev browser monitoring-tools
+# Lint and types (configured in pyproject.toml): ruff's rules and format, then mypy on the packages and bench/.
+lint: $(VENV)/.installed-dev
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
+
+# Lint first: a finding fails in seconds, before the suite's minutes. Two pytest workers: the slow
+# tests mostly wait (servers starting, outages, recoveries), and two workers take the suite from
+# ~12 to ~7 minutes on a 2-core machine.
+test: lint browser monitoring-tools
 	$(BIN)/python -m pytest -n 2
 
 bench: $(VENV)/.installed-dev

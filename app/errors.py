@@ -13,6 +13,7 @@ route is a 503 ``storage_unavailable`` with ``Retry-After``.
 from __future__ import annotations
 
 import sqlite3
+from collections.abc import Sequence
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -79,7 +80,9 @@ class ContextNotFound(ContextwebError):
     status_code = 404
 
     def __init__(self, model_id: str, context: int, context_count: int) -> None:
-        super().__init__(f"model {model_id!r} has {context_count} context(s), no context {context}", field="path.context")
+        super().__init__(
+            f"model {model_id!r} has {context_count} context(s), no context {context}", field="path.context"
+        )
 
 
 class ModelNotFitted(ContextwebError):
@@ -243,7 +246,7 @@ def error_responses(*errors: type[ContextwebError]) -> dict[int | str, dict[str,
     }
 
 
-def field_name(location: tuple[Any, ...] | list[Any]) -> str:
+def field_name(location: Sequence[Any]) -> str:
     """``("body", "objects", 0, "features", "entity")`` -> ``objects[0].features.entity``."""
     parts = list(location)
     if parts and parts[0] == "body":

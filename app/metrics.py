@@ -123,7 +123,7 @@ class ModelStateCollector(Collector):
             for model in state.registry.all():
                 label = self.labels(model.id)
                 summary = model.summary
-                values = {
+                values: dict[str, float] = {
                     "scenes": summary.scene_count,
                     "contexts": summary.context_count,
                     "vocabulary": summary.vocabulary_size,

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import functools
 import json
 import logging
 import os
@@ -47,6 +48,7 @@ import statistics
 import sys
 import time
 from collections.abc import Callable
+from typing import Any
 
 import lda
 import numpy as np
@@ -127,9 +129,9 @@ def lda_package_throughput(docs: list[np.ndarray], vocab_size: int, n_topics: in
     return sum(len(d) for d in docs) * sweeps / (long - short) if long > short else float("nan")
 
 
-def kernel_crossover(contexts: tuple[int, ...], n_docs: int, vocab_size: int = 1_000) -> dict[str, dict[str, float]]:
+def kernel_crossover(contexts: tuple[int, ...], n_docs: int, vocab_size: int = 1_000) -> dict[str, dict[str, Any]]:
     """Tokens per CPU second of one sweep with each kernel, from the same state, for each K."""
-    rows = {}
+    rows: dict[str, dict[str, Any]] = {}
     for n_topics in contexts:
         docs = synthetic_corpus(n_docs, vocab_size, n_topics, (50, 100), 5)
         words = np.concatenate(docs)
@@ -145,7 +147,7 @@ def kernel_crossover(contexts: tuple[int, ...], n_docs: int, vocab_size: int = 1
         best = dict.fromkeys(SWEEP_KERNELS, float("inf"))
         for _ in range(7):
             for kernel, state in states.items():
-                best[kernel] = min(best[kernel], timed(lambda s=state, k=kernel, r=rng: s.sweep(r, kernel=k))[1])
+                best[kernel] = min(best[kernel], timed(functools.partial(state.sweep, rng, kernel=kernel))[1])
         rows[str(n_topics)] = {kernel: words.shape[0] / seconds for kernel, seconds in best.items()}
         rows[str(n_topics)]["chosen"] = sweep_kernel(n_topics)
     return rows
@@ -235,7 +237,7 @@ def main() -> dict:
         "medium (500 words, K=20)": (synthetic_corpus(large_docs // 2, 500, 20, (50, 100), 2), 500, 20),
         "large (2000 words, K=50)": (synthetic_corpus(large_docs, 2_000, 50, (100, 100), 1), 2_000, 50),
     }
-    throughput = {}
+    throughput: dict[str, dict[str, Any]] = {}
     for name, (docs, vocab_size, n_topics) in corpora.items():
         by_kernel = {kernel: ours_throughput(docs, vocab_size, n_topics, sweeps, kernel) for kernel in SWEEP_KERNELS}
         tomotopy = tomotopy_throughput(docs, n_topics, sweeps)
@@ -259,7 +261,7 @@ def main() -> dict:
     sizes = (1_000, 10_000) if args.quick else (1_000, 100_000)
     updates_by_size = online(sizes, updates)
     medians = [updates_by_size[str(size)]["median_us"] for size in sizes]
-    result = {
+    result: dict[str, Any] = {
         "throughput": throughput,
         "kernel_crossover_tokens_per_cpu_s": crossover,
         "detection_5_objects": detection(calls),
@@ -284,10 +286,10 @@ def main() -> dict:
                 for kernel in SWEEP_KERNELS
             )
         )
-    for n_topics, row in crossover.items():
+    for contexts, row in crossover.items():
         fastest = max(SWEEP_KERNELS, key=lambda kernel: row[kernel])
         print(
-            f"{'kernels at K=' + n_topics:>26}: "
+            f"{'kernels at K=' + contexts:>26}: "
             + ", ".join(f"{kernel} {row[kernel] / 1e6:.1f} M" for kernel in SWEEP_KERNELS)
             + f" per CPU s (fastest {fastest}, chosen {row['chosen']})"
         )

@@ -35,7 +35,7 @@ import numpy as np
 from bench import RESULTS
 from core.concept_web import ConceptWeb
 from core.context import IncrementalLDA
-from core.context.feedback import contextual_feedback
+from core.context.feedback import FeedbackResult, contextual_feedback
 from core.paper_timings import CONTEXT_DETECTION_MS, WEB_CONVERGENCE_MS
 from sim.world import World
 
@@ -82,10 +82,10 @@ def main() -> dict:
     scenes = world.scenes(100, seed=3, objects_per_scene=OBJECTS_PER_SCENE)
     inputs = [noisy_scene(world, scene.objects, rng) for scene in scenes]
 
-    def feedback(scene: tuple[np.ndarray, np.ndarray]) -> object:
+    def feedback(scene: tuple[np.ndarray, np.ndarray]) -> FeedbackResult:
         return contextual_feedback(web, model, scene[0], vocabulary, applied=scene[1], sigma=0.5)
 
-    def service_feedback(scene: tuple[np.ndarray, np.ndarray]) -> object:
+    def service_feedback(scene: tuple[np.ndarray, np.ndarray]) -> FeedbackResult:
         return contextual_feedback(
             web, model, scene[0], vocabulary, applied=scene[1], sigma=0.5, marginals=False, warm_map=True
         )

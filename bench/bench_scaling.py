@@ -259,9 +259,7 @@ def _spread(targets: list[tuple[ScalingServer, str]], parts: list[list[dict]]) -
             "max": round(ms[-1], 2),
         },
         # The benchmark's own CPU (JSON encoding, http.client): it shares the machine's 2 cores.
-        "client_cpu_seconds": round(
-            (cpu_after.user + cpu_after.system) - (cpu.user + cpu.system), 2
-        ),
+        "client_cpu_seconds": round((cpu_after.user + cpu_after.system) - (cpu.user + cpu.system), 2),
         "refused": dict(statuses),
     }
     if owners:
@@ -561,9 +559,7 @@ def main() -> dict:
         }
         first = next((backend for backend in backends if urls[backend]), None)
         # The first server starts while the training features are extracted (both take tens of seconds).
-        pending = (
-            starter.submit(lambda: _start([(urls[first], folder / f"{first}-a.log", 1)])[0]) if first else None
-        )
+        pending = starter.submit(lambda: _start([(urls[first], folder / f"{first}-a.log", 1)])[0]) if first else None
         world = World.paper(0)
         started = time.perf_counter()
         recordings = world.recordings(world.train_objects, seed=0)  # an object's recording is independent of the others

@@ -160,7 +160,9 @@ class Client:
         return response.json()
 
     def _cast(self, kind: type[R], data: Any) -> R:
-        return _adapter(kind).validate_python(data)
+        # The ignore: mypy takes a class's __hash__ for the unbound instance method, so it finds no
+        # class Hashable, for functools.cache's argument; a class is hashable (its metaclass's __hash__).
+        return _adapter(kind).validate_python(data)  # type: ignore[arg-type]
 
     # -- the offline queue ----------------------------------------------------------------------
 

@@ -25,7 +25,7 @@ MAX_SAMPLE_RATE = 192_000
 
 def _finite_array(values: object, field: str, ndim: int, dtype: type = np.float64) -> np.ndarray:
     try:
-        array = np.asarray(values, dtype=dtype)
+        array: np.ndarray = np.asarray(values, dtype=dtype)
     except (TypeError, ValueError) as error:
         raise InvalidInputError(field, f"must be numeric ({error})") from None
     if array.ndim != ndim:
@@ -83,7 +83,8 @@ class FingerSeries:
             raise InvalidInputError("finger.haptic", "needs at least 2 samples")
         if haptic.shape != proprioceptive.shape:
             raise InvalidInputError(
-                "finger.proprioceptive", f"length {proprioceptive.size} does not match finger.haptic length {haptic.size}"
+                "finger.proprioceptive",
+                f"length {proprioceptive.size} does not match finger.haptic length {haptic.size}",
             )
         object.__setattr__(self, "haptic", haptic)
         object.__setattr__(self, "proprioceptive", proprioceptive)

@@ -36,7 +36,9 @@ class Vocabulary:
             raise InvalidInputError("vocabulary.nouns", "at least one noun is required")
         for pair in self.adjective_pairs:
             if len(pair) != 2 or pair[0] == pair[1]:
-                raise InvalidInputError("vocabulary.adjective_pairs", f"{pair!r} is not a pair of two distinct adjectives")
+                raise InvalidInputError(
+                    "vocabulary.adjective_pairs", f"{pair!r} is not a pair of two distinct adjectives"
+                )
         names = self.concepts
         duplicates = sorted({name for name in names if names.count(name) > 1})
         if duplicates:
@@ -52,7 +54,11 @@ class Vocabulary:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        return {"nouns": list(self.nouns), "adjective_pairs": [list(p) for p in self.adjective_pairs], "verbs": list(self.verbs)}
+        return {
+            "nouns": list(self.nouns),
+            "adjective_pairs": [list(p) for p in self.adjective_pairs],
+            "verbs": list(self.verbs),
+        }
 
     @cached_property
     def adjectives(self) -> tuple[str, ...]:

@@ -30,6 +30,10 @@ from storage.database import create_database_engine
 from storage.migrations import upgrade_to_head
 from storage.models import Base
 
+# The paper world, its concept web and its context model as fixtures (tests/paper_feedback.py).
+pytest_plugins = ["tests.paper_feedback"]
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _compiled_kernels_on_disk() -> None:
     """numba's on-disk cache filled before any test starts a server process: with an empty cache

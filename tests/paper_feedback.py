@@ -1,8 +1,10 @@
 """Fixtures shared by the context-feedback tests (Eq. 6): the paper world, its concept web
 fitted on the training objects' labels, and a context model learned from 50 of its scenes.
 
-Imported by the test modules that use them (``from tests.paper_feedback import ...``): other
-modules use the names ``world`` and ``web`` for other objects, so they are not in conftest.
+A plugin of the test suite (``pytest_plugins`` in tests/conftest.py), so these are ordinary
+fixtures, requested by name. They live apart from conftest for their paper-world meaning: modules
+that define their own ``world`` or ``web`` fixture (another world, another web) override these,
+as a module's fixture always overrides a plugin's.
 """
 
 from __future__ import annotations

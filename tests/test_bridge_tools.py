@@ -16,8 +16,8 @@ from app.schemas.plans import PlanCreate as ServicePlanCreate
 from app.schemas.scenes import SceneCreate as ServiceSceneCreate
 from app.schemas.training import TrainingBatchCreate as ServiceTrainingBatch
 from bridge import Client, RetryPolicy
-from bridge.tools import replay, simulate
 from bridge.models import ModelCreate, PlanCreate, SceneCreate, TrainingBatch, TrainingObject, Vocabulary
+from bridge.tools import replay, simulate
 from core.errors import InvalidInputError
 from sim.world import World, WorldConfig
 

@@ -78,7 +78,9 @@ def test_the_constraints_pin_every_server_dependency() -> None:
         requirement = Requirement(dependency)
         name = canonicalize_name(requirement.name)
         assert name in pinned, f"{name} is not pinned: run make constraints"
-        assert requirement.specifier.contains(pinned[name]), f"{name}=={pinned[name]} is outside {requirement.specifier}"
+        assert requirement.specifier.contains(pinned[name]), (
+            f"{name}=={pinned[name]} is outside {requirement.specifier}"
+        )
 
 
 def test_compose_commands_are_valid_cli_invocations() -> None:

@@ -15,7 +15,6 @@ from core.context.feedback import _FoldIn, _words, context_concepts, contextual_
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary
 from sim.world import World
-from tests.paper_feedback import context_model, web, world  # noqa: F401 (fixtures)
 
 FIELDS = ("perception", "web", "in_context", "context_posterior", "context_concepts")
 

@@ -5,13 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.concept_web import ConceptWeb
 from core.context import IncrementalLDA, feedback
 from core.context.feedback import context_concepts, contextual_feedback
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary
 from sim.world import World, WorldObject
-from tests.paper_feedback import context_model, web, world  # noqa: F401 (fixtures)
 
 TRUTH = 0.8
 

@@ -8,7 +8,6 @@ import pytest
 
 from core.context.feedback import PAPER_POOLING, contextual_feedback, pool
 from core.errors import InvalidInputError
-from tests.paper_feedback import context_model, web, world  # noqa: F401 (fixtures)
 from tests.test_feedback_loop import boxlike_cup_scene, random_perceptions
 
 

@@ -46,15 +46,25 @@ def test_world_file_tables_are_consistent_with_the_vocabulary() -> None:
     assert set(world["applicability"]) == set(vocabulary.nouns)
     for verbs in world["applicability"].values():
         assert set(verbs) <= set(vocabulary.verbs)
-    totals = [sum(row[a] for a in pair) for row in world["noun_adjective_counts"].values() for pair in vocabulary.adjective_pairs]
+    totals = [
+        sum(row[a] for a in pair)
+        for row in world["noun_adjective_counts"].values()
+        for pair in vocabulary.adjective_pairs
+    ]
     assert sum(totals) == 60 * 5
 
 
 def test_table_iii_layout_has_the_papers_positions() -> None:
     # Table III gives 1-based positions; the layout's slices are 0-based.
     expected = {
-        "position": (1, 3), "dimensions": (4, 6), "normal_zenith": (7, 26), "normal_azimuth": (27, 46),
-        "shape_index": (47, 66), "mfcc_range": (67, 79), "haptic": (80, 85), "proprioceptive": (86, 91),
+        "position": (1, 3),
+        "dimensions": (4, 6),
+        "normal_zenith": (7, 26),
+        "normal_azimuth": (27, 46),
+        "shape_index": (47, 66),
+        "mfcc_range": (67, 79),
+        "haptic": (80, 85),
+        "proprioceptive": (86, 91),
     }
     for name, (first, last) in expected.items():
         block = ENTITY_LAYOUT[name]

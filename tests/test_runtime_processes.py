@@ -87,9 +87,9 @@ def test_reads_see_every_write_of_the_other_process(two_processes: tuple[TestCli
         _learn(first, model_id, body)
         seen = second.get(f"/v1/models/{model_id}").json()
         assert seen["scene_count"] == i + 1
-        assert second.get(f"/v1/models/{model_id}/contexts").json() == first.get(
-            f"/v1/models/{model_id}/contexts"
-        ).json()
+        assert (
+            second.get(f"/v1/models/{model_id}/contexts").json() == first.get(f"/v1/models/{model_id}/contexts").json()
+        )
     listed = {model["id"]: model for model in second.get("/v1/models").json()}
     assert listed[model_id]["scene_count"] == 12 and listed[model_id]["status"] == "available"
 

@@ -64,9 +64,7 @@ def test_a_bad_scene_is_a_422_naming_the_field(client: TestClient, model_id: str
 def test_a_body_that_is_not_json_is_a_422_on_the_body_saying_where(
     client: TestClient, model_id: str, text: str, position: int
 ) -> None:
-    response = client.post(
-        f"/v1/models/{model_id}/scenes", content=text, headers={"Content-Type": "application/json"}
-    )
+    response = client.post(f"/v1/models/{model_id}/scenes", content=text, headers={"Content-Type": "application/json"})
     assert response.status_code == 422, response.text
     assert response.json()["field"] == "body"
     assert response.json()["detail"].startswith(f"body: not valid JSON at character {position} (")

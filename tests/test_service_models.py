@@ -21,7 +21,11 @@ def test_create_get_list_and_delete(client: TestClient) -> None:
     assert client.delete(f"/v1/models/{model['id']}").status_code == 204
     missing = client.get(f"/v1/models/{model['id']}")
     assert missing.status_code == 404
-    assert missing.json() == {"error": "model_not_found", "detail": f"no model {model['id']!r}", "field": "path.model_id"}
+    assert missing.json() == {
+        "error": "model_not_found",
+        "detail": f"no model {model['id']!r}",
+        "field": "path.model_id",
+    }
     assert [m["id"] for m in client.get("/v1/models").json()] == [other["id"]]
 
 

@@ -19,7 +19,12 @@ from storage.repositories.incremental_lda import SceneChanges
 from storage.unit_of_work import unit_of_work
 from tests.conftest import migrated_database
 
-SMALL_SCENES = [["cup", "plate", "hard"], ["ball", "box", "soft", "ball"], ["cup", "spoon"], ["tool", "cylinder", "hard"]]
+SMALL_SCENES = [
+    ["cup", "plate", "hard"],
+    ["ball", "box", "soft", "ball"],
+    ["cup", "spoon"],
+    ["tool", "cylinder", "hard"],
+]
 #: Paper-world scenes after small hand-made ones: the contexts grow (K = 3 by the end, seed 5), so
 #: updates reassign earlier tokens, which must be rewritten, not only appended.
 SCENES = SMALL_SCENES + [
@@ -111,7 +116,9 @@ def _plan_nodes(node: dict) -> list[dict]:
 
 
 @pytest.mark.postgres
-def test_rewriting_moved_tokens_never_scans_the_models_tokens(postgres_url: str, request: pytest.FixtureRequest) -> None:
+def test_rewriting_moved_tokens_never_scans_the_models_tokens(
+    postgres_url: str, request: pytest.FixtureRequest
+) -> None:
     """With statistics older than the corpus (a fresh table, never analysed), the statement that
     rewrites a scene's moved tokens probes the primary key row by row: an UPDATE ... FROM unnest
     was planned as a hash join over every token of the model, a cost that grew with the corpus."""

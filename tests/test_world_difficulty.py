@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from core.errors import InvalidInputError
+from core.prototypes import fit_prototypes
 from experiments import recognition
 from experiments.context_scenes import object_features
-from core.prototypes import fit_prototypes
 from sim.sensors import EASY, Difficulty, make_body
 from sim.world import WORLDS, World, WorldConfig
 

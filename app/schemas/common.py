@@ -19,14 +19,15 @@ def _shape(value: Any) -> str:
     return AS_BASE64 if isinstance(value, str) else AS_LIST
 
 
-def list_or_map(names: Any, probabilities: Any) -> Any:
-    """``names | probabilities`` told apart by the JSON shape (array or object)."""
-    return Annotated[Annotated[names, Tag(AS_LIST)] | Annotated[probabilities, Tag(AS_MAP)], Discriminator(_shape)]
+Names = TypeVar("Names")
+Probabilities = TypeVar("Probabilities")
+Array = TypeVar("Array")
+Base64 = TypeVar("Base64")
 
-
-def array_or_base64(array: Any, base64: Any) -> Any:
-    """``array | base64`` told apart by the JSON shape (array or string)."""
-    return Annotated[Annotated[array, Tag(AS_LIST)] | Annotated[base64, Tag(AS_BASE64)], Discriminator(_shape)]
+#: ``ListOrMap[Names, Probabilities]``: ``Names | Probabilities`` told apart by the JSON shape (array or object).
+ListOrMap = Annotated[Annotated[Names, Tag(AS_LIST)] | Annotated[Probabilities, Tag(AS_MAP)], Discriminator(_shape)]
+#: ``ArrayOrBase64[Array, Base64]``: ``Array | Base64`` told apart by the JSON shape (array or string).
+ArrayOrBase64 = Annotated[Annotated[Array, Tag(AS_LIST)] | Annotated[Base64, Tag(AS_BASE64)], Discriminator(_shape)]
 
 
 #: A probability in [0, 1].

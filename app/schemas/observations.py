@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import base64
 import binascii
-from typing import Annotated, Any, ClassVar
+from typing import Annotated, Any, ClassVar, TypeVar
 
 import numpy as np
 from pydantic import AfterValidator, Field, StringConstraints, field_validator, model_validator
 
-from app.schemas.common import FiniteFloat, RequestSchema, array_or_base64
+from app.schemas.common import ArrayOrBase64, FiniteFloat, RequestSchema
 from core.features.layout import EFFECT_SIZE, ENTITY_SIZE
 from core.payloads import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE
 
@@ -53,9 +53,9 @@ Base64Floats = Annotated[
     AfterValidator(_decodable_float32),
     Field(description="Base64 of little-endian float32 values.", examples=["AACAPwAAAEA="]),
 ]
-FloatSeries = array_or_base64(Annotated[list[FiniteFloat], Field(min_length=1)], Base64Floats)
+FloatSeries = ArrayOrBase64[Annotated[list[FiniteFloat], Field(min_length=1)], Base64Floats]
 Point = Annotated[list[FiniteFloat], Field(min_length=3, max_length=3)]
-Points = array_or_base64(Annotated[list[Point], Field(min_length=1)], Base64Floats)
+Points = ArrayOrBase64[Annotated[list[Point], Field(min_length=1)], Base64Floats]
 
 EntityVector = Annotated[
     list[FiniteFloat],
@@ -122,7 +122,10 @@ class RawObject(RequestSchema):
     interactions: list[InteractionIn] = Field(default_factory=list, max_length=64)
 
 
-def only_one_level(values: dict[str, Any], levels: tuple[str, ...]) -> str:
+Level = TypeVar("Level", bound=str)
+
+
+def only_one_level(values: dict[str, Any], levels: tuple[Level, ...]) -> Level:
     """The one level given in ``values`` (a ValueError when none or several are)."""
     given = [level for level in levels if values.get(level) is not None]
     if len(given) != 1:

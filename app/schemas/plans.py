@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import Field, model_validator
+from pydantic import ConfigDict, Field, model_validator
 
 from app.schemas.common import ReadSchema, RequestSchema
 from app.schemas.observations import Name
@@ -18,7 +18,7 @@ class PlanCreate(RequestSchema):
     """Bring ``object`` from ``start`` to ``goal``; the context is given, read from a learned scene,
     or inferred from a scene posted here (at most one of the three; none means no pruning)."""
 
-    model_config = {"json_schema_extra": {"examples": [{"object": "cup", "start": 8, "goal": 5, "context": 0}]}}
+    model_config = ConfigDict(json_schema_extra={"examples": [{"object": "cup", "start": 8, "goal": 5, "context": 0}]})
 
     object: Name = Field(description="Name of the object to move (a label; it need not be a concept).")
     start: int = Field(ge=1, le=10_000, description="Its position (Fig. 15(a) numbering).")
@@ -50,8 +50,8 @@ class SearchCount(ReadSchema):
 
 
 class PlanRead(ReadSchema):
-    model_config = {
-        "json_schema_extra": {
+    model_config = ConfigDict(
+        json_schema_extra={
             "examples": [
                 {
                     "status": "solved",
@@ -78,7 +78,7 @@ class PlanRead(ReadSchema):
                 }
             ]
         }
-    }
+    )
 
     status: Literal["solved", "unreachable", "budget_exceeded"]
     mode: str

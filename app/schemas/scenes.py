@@ -5,9 +5,10 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Literal
 
-from pydantic import Field
+from pydantic import ConfigDict, Field
+from pydantic.json_schema import JsonDict
 
-from app.schemas.common import Probability, ReadSchema, RequestSchema, list_or_map
+from app.schemas.common import ListOrMap, Probability, ReadSchema, RequestSchema
 from app.schemas.observations import Name, ObjectFeatures, OneLevel, RawObject, only_one_level
 
 #: The kinds of concept of §III (``core.vocabulary.CONCEPT_KINDS``).
@@ -26,7 +27,7 @@ class SceneObject(OneLevel):
 
     levels = OBJECT_LEVELS
 
-    concepts: list_or_map(ConceptNames, ConceptProbabilities) | None = Field(
+    concepts: ListOrMap[ConceptNames, ConceptProbabilities] | None = Field(
         None,
         description=(
             "Concept level, for robots with their own recognisers: the names of the object's active concepts, "
@@ -45,7 +46,7 @@ class SceneObject(OneLevel):
         return only_one_level({"concepts": self.concepts, "features": self.features, "raw": self.raw}, OBJECT_LEVELS)
 
 
-SCENE_EXAMPLE = {
+SCENE_EXAMPLE: JsonDict = {
     "objects": [
         {"concepts": ["cup", "hard", "silent", "short", "thick", "round", "grasp", "move_left"]},
         {"concepts": {"plate": 0.9, "cup": 0.1, "hard": 0.8, "soft": 0.2}},
@@ -57,7 +58,7 @@ SCENE_EXAMPLE = {
 class SceneCreate(RequestSchema):
     """A scene: the objects the robot perceives together (an LDA document, §IV-B)."""
 
-    model_config = {"json_schema_extra": {"examples": [SCENE_EXAMPLE]}}
+    model_config = ConfigDict(json_schema_extra={"examples": [SCENE_EXAMPLE]})
 
     objects: list[SceneObject] = Field(min_length=1, max_length=MAX_OBJECTS_PER_SCENE)
 
@@ -81,8 +82,8 @@ class ObjectAnalysis(ReadSchema):
 class SceneRead(ReadSchema):
     """The analysis of a scene: per-object concept webs and the context posterior P(χ | scene)."""
 
-    model_config = {
-        "json_schema_extra": {
+    model_config = ConfigDict(
+        json_schema_extra={
             "examples": [
                 {
                     "model_id": "3f2c0b9e5d7a4e1f8a6b2c4d9e0f1a2b",
@@ -105,7 +106,7 @@ class SceneRead(ReadSchema):
                 }
             ]
         }
-    }
+    )
 
     model_id: str
     scene_id: int | None = Field(description="Index of the scene in the model (null for inference).")
@@ -124,8 +125,8 @@ class SceneRead(ReadSchema):
 class SceneSummary(ReadSchema):
     """One line of the scene history."""
 
-    model_config = {
-        "json_schema_extra": {
+    model_config = ConfigDict(
+        json_schema_extra={
             "examples": [
                 {
                     "scene_id": 41,
@@ -136,7 +137,7 @@ class SceneSummary(ReadSchema):
                 }
             ]
         }
-    }
+    )
 
     scene_id: int = Field(validation_alias="id")
     context_count: int

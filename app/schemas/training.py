@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import ConfigDict, Field
 
 from app.schemas.common import ReadSchema, RequestSchema
 from app.schemas.observations import BehaviourName, Name, ObjectFeatures, OneLevel, RawObject
@@ -31,8 +31,8 @@ class TrainingObjectCreate(OneLevel):
 
 
 class TrainingBatchCreate(RequestSchema):
-    model_config = {
-        "json_schema_extra": {
+    model_config = ConfigDict(
+        json_schema_extra={
             "examples": [
                 {
                     "objects": [
@@ -46,20 +46,20 @@ class TrainingBatchCreate(RequestSchema):
                 }
             ]
         }
-    }
+    )
 
     objects: list[TrainingObjectCreate] = Field(min_length=1, max_length=500)
 
 
 class TrainingBatchRead(ReadSchema):
-    model_config = {"json_schema_extra": {"examples": [{"added": 1, "training_object_count": 45}]}}
+    model_config = ConfigDict(json_schema_extra={"examples": [{"added": 1, "training_object_count": 45}]})
 
     added: int
     training_object_count: int
 
 
 class FitCreate(RequestSchema):
-    model_config = {"json_schema_extra": {"examples": [{"method": "rgng", "seed": 0}]}}
+    model_config = ConfigDict(json_schema_extra={"examples": [{"method": "rgng", "seed": 0}]})
 
     method: Literal["rgng", "kmeans"] = Field(
         "rgng", description="Clustering of the (mean, variance) plane: RGNG as in the paper, or k-means."
@@ -70,8 +70,8 @@ class FitCreate(RequestSchema):
 class FitRead(ReadSchema):
     """What a fit produced (it takes effect for the scenes posted after it)."""
 
-    model_config = {
-        "json_schema_extra": {
+    model_config = ConfigDict(
+        json_schema_extra={
             "examples": [
                 {
                     "model_id": "3f2c0b9e5d7a4e1f8a6b2c4d9e0f1a2b",
@@ -82,7 +82,7 @@ class FitRead(ReadSchema):
                 }
             ]
         }
-    }
+    )
 
     model_id: str
     method: str
@@ -100,8 +100,8 @@ class PrototypeRead(ReadSchema):
 
 
 class PrototypeTableRead(ReadSchema):
-    model_config = {
-        "json_schema_extra": {
+    model_config = ConfigDict(
+        json_schema_extra={
             "examples": [
                 {
                     "method": "rgng",
@@ -110,7 +110,7 @@ class PrototypeTableRead(ReadSchema):
                 }
             ]
         }
-    }
+    )
 
     method: str
     concepts: list[PrototypeRead]

@@ -54,7 +54,7 @@ def key_read(row: ApiKey) -> ApiKeyRead:
     return ApiKeyRead(
         id=row.id,
         name=row.name,
-        role=row.role,  # type: ignore[arg-type]
+        role=row.role,
         models=row.model_ids,
         prefix=row.prefix,
         created_at=row.created_at,

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import TypedDict
+
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput, ModelNotFitted, SceneNotFound
@@ -12,6 +14,14 @@ from core.planning import PlanResult, plan, plan_in_context, verb_given_context_
 from storage.repositories import scenes as scene_repository
 
 
+class _Search(TypedDict):
+    """The search settings both planners take (core.planning.plan, plan_in_context)."""
+
+    mode: str
+    node_budget: int
+    depth_budget: int
+
+
 def make_plan(session: Session, model: ModelRuntime, body: PlanCreate) -> PlanRead:
     effects = model.effects
     if effects is None:
@@ -19,7 +29,7 @@ def make_plan(session: Session, model: ModelRuntime, body: PlanCreate) -> PlanRe
     if body.object in body.obstacles:
         raise InvalidInput(f"obstacles.{body.object}", "the object to move cannot also be an obstacle")
     table = {body.object: body.start, **body.obstacles}
-    budgets = {"mode": body.mode, "node_budget": body.node_budget, "depth_budget": body.depth_budget}
+    budgets: _Search = {"mode": body.mode, "node_budget": body.node_budget, "depth_budget": body.depth_budget}
     unpruned = _checked(plan(effects, table, body.object, body.goal, **budgets))
     context, source = _context(session, model, body)
     if context is None:

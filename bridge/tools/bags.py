@@ -22,6 +22,7 @@ of its scene; scenes before it are posted (each once, thanks to its key).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -32,8 +33,8 @@ from typing import TYPE_CHECKING, Any, Self
 import numpy as np
 
 from bridge.client import Client, QueuedScene
-from bridge.tools.mapping import AudioStream, Haptics, Mapping, Proprioception
 from bridge.models import SceneObject, SceneRead
+from bridge.tools.mapping import AudioStream, Haptics, Mapping, Proprioception
 from bridge.tools.segments import (
     InteractionPlan,
     ObjectPlan,
@@ -138,6 +139,8 @@ class BagReplay:
         if self.mapping.windows is not None:
             return plan_from_windows(self.mapping.windows, self.start, self.stop)
         topic = self.mapping.markers
+        if topic is None:
+            raise InvalidInputError("mapping.segmentation", "needs exactly one of markers (a stream) or windows")
         markers = [(m.time, str(self._decode(m).data)) for m in self._messages([topic], Window(self.start, self.stop))]
         return plan_from_markers(markers, self.start, self.stop, f"{self.path} {topic}")
 
@@ -245,7 +248,7 @@ class BagReplay:
         messages = _within(by_topic[stream.source], plan.window)
         if not messages:
             return None
-        chunks = [audio_samples(self._decode(m), stream, lambda what, m=m: self._problem(m, what)) for m in messages]
+        chunks = [audio_samples(self._decode(m), stream, functools.partial(self._problem, m)) for m in messages]
         return _payload(lambda: Audio(np.concatenate(chunks), stream.sample_rate), self._problem, messages[0])
 
     def _finger(self, plan: InteractionPlan, by_topic: dict[str, list[Message]], what: str) -> Any:
@@ -263,8 +266,8 @@ class BagReplay:
         for topic, messages in ((joint.source, joints), (haptics.source, touches)):
             if not messages:
                 raise self._missing(topic, plan.window, f"{what}, though its other finger topic has messages")
-        angles = [joint_angle(self._decode(m), joint, lambda w, m=m: self._problem(m, w)) for m in joints]
-        pressures = [haptic_value(self._decode(m), haptics, lambda w, m=m: self._problem(m, w)) for m in touches]
+        angles = [joint_angle(self._decode(m), joint, functools.partial(self._problem, m)) for m in joints]
+        pressures = [haptic_value(self._decode(m), haptics, functools.partial(self._problem, m)) for m in touches]
         return _payload(
             lambda: finger_series([m.time for m in joints], angles, [m.time for m in touches], pressures),
             self._problem,

@@ -117,11 +117,11 @@ def parse_mapping(table: dict[str, Any]) -> Mapping:
     """A mapping from its TOML table (see the module docstring)."""
     _only(table, "mapping", {"clouds", "audio", "proprioception", "haptics", "segmentation", "yarp"})
     mapping = Mapping(
-        clouds=_clouds(_section(table, "clouds", required=True)),
+        clouds=_clouds(_required_section(table, "clouds")),
         audio=_audio(_section(table, "audio")),
         proprioception=_proprioception(_section(table, "proprioception")),
         haptics=_haptics(_section(table, "haptics")),
-        **_segmentation(_section(table, "segmentation", required=True)),
+        **_segmentation(_required_section(table, "segmentation")),
         **_yarp(_section(table, "yarp")),
     )
     if (mapping.proprioception is None) != (mapping.haptics is None):
@@ -129,10 +129,15 @@ def parse_mapping(table: dict[str, Any]) -> Mapping:
     return mapping
 
 
-def _section(table: dict[str, Any], name: str, *, required: bool = False) -> dict[str, Any] | None:
-    section = table.get(name)
-    if section is None and required:
+def _required_section(table: dict[str, Any], name: str) -> dict[str, Any]:
+    section = _section(table, name)
+    if section is None:
         raise InvalidInputError(f"mapping.{name}", "is missing")
+    return section
+
+
+def _section(table: dict[str, Any], name: str) -> dict[str, Any] | None:
+    section = table.get(name)
     if section is not None and not isinstance(section, dict):
         raise InvalidInputError(f"mapping.{name}", "must be a table")
     return section

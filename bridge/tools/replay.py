@@ -26,12 +26,13 @@ an error naming the file and the problem before anything is sent.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import soundfile
@@ -43,6 +44,10 @@ from bridge.models import SceneObject, TrainingObject
 from bridge.tools.simulate import DEFAULT_MAX_POINTS, add_service_arguments, raw_object
 from core.errors import InvalidInputError
 from core.payloads import Audio, FingerSeries, Interaction, ObjectRecording, PointCloud
+
+if TYPE_CHECKING:
+    from bridge.models import SceneRead
+    from bridge.tools.segments import SegmentedScene
 
 CLOUD_SUFFIXES = (".ply", ".pcd")
 FORMATS = ("auto", "folder", "bag", "yarp")
@@ -270,9 +275,7 @@ def _run_recordings(args: argparse.Namespace, formats: dict[Path, str]) -> int:
                     continue
                 replayers[kind](
                     client, args.model_id, path, mapping, seed=args.seed, max_points=args.max_points,
-                    on_answer=lambda scene, answer, path=path: print(
-                        f"{path} scene {scene.plan.index} ({len(scene.recordings)} objects): {_describe(answer)}"
-                    ),
+                    on_answer=functools.partial(_print_scene_answer, path),
                 )  # fmt: skip
     except (InvalidInputError, ImportError) as error:
         print(f"contextweb bridge replay: {error}", file=sys.stderr)
@@ -315,6 +318,10 @@ def replay_training(
         )
         client.training.add_objects(model_id, [labelled])
     return client.training.fit(model_id)
+
+
+def _print_scene_answer(path: Path, scene: SegmentedScene, answer: SceneRead | QueuedScene) -> None:
+    print(f"{path} scene {scene.plan.index} ({len(scene.recordings)} objects): {_describe(answer)}")
 
 
 def _describe(answer: Any) -> str:

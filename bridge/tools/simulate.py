@@ -226,8 +226,13 @@ def training_object(
             noun=obj.noun, adjectives=list(obj.adjectives), raw=raw_object(recording, rng, max_points)
         )
     entity, effects = recording_features(recording)
-    features = SceneObject.from_features(entity, effects).features
+    features = _feature_object(entity, effects).features
     return TrainingObject(noun=obj.noun, adjectives=list(obj.adjectives), features=features)
+
+
+def _feature_object(entity: np.ndarray, effects: dict[str, np.ndarray]) -> SceneObject:
+    """A feature-level scene object: the bridge's models take plain lists (a robot's install has no numpy)."""
+    return SceneObject.from_features(entity.tolist(), {behaviour: f.tolist() for behaviour, f in effects.items()})
 
 
 def scene_objects(
@@ -238,7 +243,7 @@ def scene_objects(
         return [SceneObject.from_concepts([*obj.concepts, *obj.behaviours]) for obj in scene.objects]
     recordings = [world.record(obj, rng) for obj in scene.objects]
     if level == "features":
-        return [SceneObject.from_features(*recording_features(recording)) for recording in recordings]
+        return [_feature_object(*recording_features(recording)) for recording in recordings]
     return [SceneObject(raw=raw_object(recording, rng, max_points)) for recording in recordings]
 
 

@@ -37,10 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
-from bridge.tools.bags import post_scenes, reduce_values
 from bridge.client import Client, QueuedScene
-from bridge.tools.mapping import Mapping
 from bridge.models import SceneRead
+from bridge.tools.bags import post_scenes, reduce_values
+from bridge.tools.mapping import Mapping, Proprioception
 from bridge.tools.replay import read_object
 from bridge.tools.segments import (
     NANOSECONDS,
@@ -123,8 +123,8 @@ def read_port_log(folder: Path, timestamps: int = 1) -> PortLog:
         line_numbers.append(number)
     stamps = np.asarray(times, dtype=np.int64)
     if stamps.size and np.any(np.diff(stamps) < 0):
-        line = line_numbers[int(np.argmax(np.diff(stamps) < 0)) + 1]
-        raise InvalidInputError(str(folder / "data.log"), f"line {line} goes back in time")
+        back = line_numbers[int(np.argmax(np.diff(stamps) < 0)) + 1]
+        raise InvalidInputError(str(folder / "data.log"), f"line {back} goes back in time")
     return PortLog(folder, stamps, values, line_numbers)
 
 
@@ -211,7 +211,7 @@ class YarpSession:
                     f"has no line in the {plan.behaviour!r} window from {format_time(plan.window.start, self.start)}"
                     f" to {format_time(plan.window.stop, self.start)}, though the other finger port has",
                 )
-        angles = [self._angle(joints, int(line)) for line in joint_lines]
+        angles = [self._angle(joints, int(line), joint) for line in joint_lines]
         pressures = [
             reduce_values(skin.numbers(int(line), 0), haptics, _problem_at(skin, int(line))) for line in skin_lines
         ]
@@ -220,12 +220,12 @@ class YarpSession:
         except InvalidInputError as error:
             raise joints.problem(int(joint_lines[0]), str(error)) from None
 
-    def _angle(self, log: PortLog, line: int) -> float:
-        column = int(self.mapping.proprioception.joint)
+    def _angle(self, log: PortLog, line: int, joint: Proprioception) -> float:
+        column = int(joint.joint)
         if column >= len(log.values[line]):
             raise log.problem(line, f"has {len(log.values[line])} values, the mapping reads column {column}")
         value = float(log.numbers(line, column, 1)[0])
-        return float(np.deg2rad(value)) if self.mapping.proprioception.unit == "deg" else value
+        return float(np.deg2rad(value)) if joint.unit == "deg" else value
 
 
 def _lines_within(log: PortLog, start: int, stop: int) -> np.ndarray:

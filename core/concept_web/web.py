@@ -487,7 +487,7 @@ class ConceptWeb:
             sum_messages,
             max_messages,
         )
-        steps, settled = iterations.max(axis=1).tolist(), converged.all(axis=1).tolist()
+        steps, settled = iterations.max(axis=1).tolist(), np.all(converged, axis=1).tolist()
         return [
             WebInference(
                 probabilities[i],

@@ -44,6 +44,12 @@ SWEEP_KERNELS = {
 """Gibbs sweeps of Eq. 5 with the same arguments and one uniform per token; same stationary
 distribution, but each maps a given uniform to its own context (docs/context.md, "Sweep kernels")."""
 
+#: What :meth:`LDAState._window_arguments` passes to a kernel over a window of scenes: words, z,
+#: scene offsets, first and stop scene, n_wk, n_k, n_dk, K, α, ξ, |W|.
+_WindowArguments = tuple[
+    np.ndarray, np.ndarray, np.ndarray, int, int, np.ndarray, np.ndarray, np.ndarray, int, float, float, int
+]
+
 LANES_FROM_CONTEXTS = 32
 """K from which :func:`sweep_kernel` picks ``"lanes"`` (measured crossover with ``"dense"``)."""
 
@@ -316,7 +322,7 @@ class LDAState:
         for _ in range(sweeps):
             SWEEP_KERNELS[chosen](*self._window_arguments(first_doc), self._draw_uniforms(rng, n_uniforms))
 
-    def _window_arguments(self, first_doc: int) -> tuple:
+    def _window_arguments(self, first_doc: int) -> _WindowArguments:
         """What a kernel over scenes ``first_doc:`` takes: corpus, scene range, counts, K, α, ξ, |W|."""
         return (
             self._words, self._z, self._offsets, first_doc, self.n_documents,
@@ -478,7 +484,7 @@ class LDAState:
         kernels.split_scenes(
             self._words, self._z, self._offsets[: self.n_documents + 1], order, previous, flags,
             self._n_wk, self._n_k, self._n_dk, self.n_contexts - 1, self.alpha, self.xi, self.vocab_size,
-            rng.random(order.shape[0]),
+            rng.random(len(order)),
         )  # fmt: skip
 
     def remove_last_context(self) -> None:

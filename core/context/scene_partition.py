@@ -150,7 +150,7 @@ def _search(
     prior_total = float(prior.sum())
     order = np.concatenate([rng.permutation(blocks.n_scenes) for _ in range(sampled)])
     arguments = (blocks.offsets, blocks.words, blocks.counts, blocks.totals, labels, counts, totals, prior, prior_total)
-    kernels.partition_scans(*arguments, order, rng.random(order.shape[0]), order.shape[0])
+    kernels.partition_scans(*arguments, order, rng.random(len(order)), len(order))
     for _ in range(GREEDY_SCANS):
         order = rng.permutation(blocks.n_scenes)
         if kernels.partition_scans(*arguments, order, np.zeros(0), 0) == 0:

@@ -58,6 +58,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import cast
 
 import librosa
 import numpy as np
@@ -325,7 +326,8 @@ def _shape_index_histogram(surface: SurfaceEstimate) -> np.ndarray:
 
 def _checked_points(cloud: PointCloud | ArrayLike, field: str) -> np.ndarray:
     """The (n, 3) finite points of a payload or a raw array, re-validated (arrays are mutable)."""
-    raw = cloud.points if isinstance(cloud, PointCloud) else cloud
+    # PointCloud's __post_init__ converts and validates any array-like; its field then holds the array.
+    raw = cloud.points if isinstance(cloud, PointCloud) else cast(np.ndarray, cloud)
     try:
         return PointCloud(raw).points
     except InvalidInputError as error:

@@ -30,6 +30,7 @@ a push): 2.8 spreads each.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TypeGuard
 
 import numpy as np
 
@@ -88,14 +89,18 @@ class Workspace:
     def positions(self) -> range:
         return range(1, self.size + 1)
 
-    def contains(self, position: object) -> bool:
-        return isinstance(position, (int, np.integer)) and not isinstance(position, bool) and 1 <= position <= self.size
+    def contains(self, position: object) -> TypeGuard[int | np.integer]:
+        return (
+            isinstance(position, (int, np.integer))
+            and not isinstance(position, bool)
+            and bool(1 <= position <= self.size)
+        )
 
     def require_position(self, field: str, position: object) -> int:
         """``position`` as an int, or an :class:`InvalidInputError` naming ``field``."""
-        if not self.contains(position):
-            raise InvalidInputError(field, f"position {position!r} is not on the table (positions 1..{self.size})")
-        return int(position)  # type: ignore[arg-type]
+        if self.contains(position):
+            return int(position)
+        raise InvalidInputError(field, f"position {position!r} is not on the table (positions 1..{self.size})")
 
     def cell(self, position: int) -> tuple[int, int]:
         """``(column, row)`` of a position."""

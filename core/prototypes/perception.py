@@ -197,7 +197,7 @@ def _checked_observations(
     for i, (entity, effect_map) in enumerate(zip(entities, maps, strict=True)):
         entity_field, effects_field = (f"entities[{i}]", f"effects[{i}]") if indexed else ("entity", "effects")
         entity_rows.append(prototypes.standardised_entities(entity, entity_field))
-        if np.ndim(entity) != 1:
+        if np.asarray(entity).ndim != 1:
             raise InvalidInputError(entity_field, "perceive takes one entity vector of 91 features")
         for behaviour, effect in effect_map.items():
             if behaviour not in columns:
@@ -206,7 +206,7 @@ def _checked_observations(
                 effect_rows.append(prototypes.standardised_effects(effect))
             except InvalidInputError as error:
                 raise InvalidInputError(f"{effects_field}.{behaviour}", error.problem) from None
-            if np.ndim(effect) != 1:
+            if np.asarray(effect).ndim != 1:
                 raise InvalidInputError(f"{effects_field}.{behaviour}", "must be one effect vector of 66 features")
             owners.append(i)
             verbs.append(columns[behaviour])

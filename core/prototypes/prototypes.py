@@ -184,7 +184,8 @@ class PrototypeSet:
             value = self.temperatures.get(kind)
             if value is None or not np.isfinite(value) or value <= 0.0:
                 raise InvalidInputError(f"prototypes.temperatures.{kind}", f"must be a positive number, got {value!r}")
-            if np.shape(self.biases.get(kind)) != (offsets[kind],):
+            bias = self.biases.get(kind)
+            if bias is None or np.shape(bias) != (offsets[kind],):
                 raise InvalidInputError(f"prototypes.biases.{kind}", f"must have shape ({offsets[kind]},)")
 
     @property
@@ -211,11 +212,11 @@ class PrototypeSet:
         out = self.verb_eq1.distances(self.standardised_effects(effect))
         return out[0] if np.ndim(effect) == 1 else out
 
-    def standardised_entities(self, entity: np.ndarray, field_name: str = "entity") -> np.ndarray:
+    def standardised_entities(self, entity: object, field_name: str = "entity") -> np.ndarray:
         """Validated entity vector(s) z-scored as in training: (91,) or (n, 91) -> (n, 91)."""
         return (_feature_rows(entity, ENTITY_SIZE, field_name) - self.entity_center) / self.entity_scale
 
-    def standardised_effects(self, effect: np.ndarray, field_name: str = "effect") -> np.ndarray:
+    def standardised_effects(self, effect: object, field_name: str = "effect") -> np.ndarray:
         """Validated effect vector(s) in units of the pooled within-verb scatter: (66,) or (m, 66) -> (m, 66)."""
         return _feature_rows(effect, EFFECT_SIZE, field_name) / self.effect_scale
 
@@ -375,20 +376,22 @@ def fit_prototypes(
     entity_means = np.vstack([noun_stats[0], adjective_stats[0]])
     entity_variances = np.vstack([noun_stats[1], adjective_stats[1]])
 
-    entity_seeds, verb_seeds = np.split(
-        np.random.SeedSequence(seed).spawn(len(vocabulary.concepts)), [len(entity_means)]
-    )
-    options = {"method": method, "rgng_parameters": rgng_parameters}
+    seeds = np.random.SeedSequence(seed).spawn(len(vocabulary.concepts))
+    entity_seeds, verb_seeds = seeds[: len(entity_means)], seeds[len(entity_means) :]
     entity_relevance = np.array(
         [
-            relevance_codes(m, v, allow_unaffected=False, seed=s, rule=entity_rule, **options)
+            relevance_codes(
+                m, v, allow_unaffected=False, method=method, seed=s, rule=entity_rule, rgng_parameters=rgng_parameters
+            )
             for m, v, s in zip(entity_means, entity_variances, entity_seeds)
         ],
         dtype=np.uint8,
     ).reshape(entity_means.shape)
     verb_relevance = np.array(
         [
-            relevance_codes(m, v, allow_unaffected=True, seed=s, rule=verb_rule, **options)
+            relevance_codes(
+                m, v, allow_unaffected=True, method=method, seed=s, rule=verb_rule, rgng_parameters=rgng_parameters
+            )
             for m, v, s in zip(verb_means, verb_variances, verb_seeds)
         ],
         dtype=np.uint8,
@@ -415,7 +418,7 @@ def fit_prototypes(
 
 
 def _training_matrix(values: object, size: int, field_name: str, *, allow_empty: bool) -> np.ndarray:
-    array = np.asarray(values, dtype=np.float64) if np.size(values) else np.zeros((0, size))
+    array = np.asarray(values, dtype=np.float64) if np.asarray(values).size else np.zeros((0, size))
     if array.ndim != 2:
         raise InvalidInputError(field_name, f"must be an (n, {size}) matrix, got shape {array.shape}")
     if len(array) == 0 and not allow_empty:

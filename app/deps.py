@@ -5,11 +5,12 @@ dependency commits when the route returned and rolls back when it raised. Both
 session dependencies use ``scope="function"``: they close *before* the response
 is sent, so an acknowledgement always follows a durable commit.
 
-A write to a model goes through :func:`model_write`, which holds the model's
-lock in this process and in the database around the whole unit of work
+A write to a model goes through :func:`model_write`, which runs it as a
+transaction of the model's writer (app/registry.py ``ModelWriter``): the model's
+lock in this process and in the database are held around the whole unit of work
 (catch-up, in-memory update, flush, commit, then the events) so that memory
-follows the database: if anything fails, the model is reloaded from the
-database or marked unavailable before the lock is released. It is a context
+follows the database: if anything fails, the writer reloads the model from the
+database or marks it unavailable before the lock is released. It is a context
 manager the route opens around its one service call, not a dependency: a sync
 dependency with ``yield`` costs two extra hops to the thread pool (enter and
 exit), and the scene route is the hot path.
@@ -17,10 +18,8 @@ exit), and the scene route is the hot path.
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from typing import Annotated, TypeVar
 
 import anyio
@@ -32,22 +31,17 @@ from starlette.requests import HTTPConnection, Request
 from app.admission import Admission, client_identity
 from app.auth import Principal, authenticate, authorise
 from app.errors import (
-    ModelNotFound,
-    ModelUnavailable,
     Unauthorized,
     is_storage_busy,
     is_storage_failure,
     storage_error,
     storage_failure_reason,
 )
-from app.registry import ModelRuntime, catch_up
+from app.registry import ModelRuntime, ModelWrite
 from app.schemas.keys import Role
 from app.state import AppState
-from storage.repositories import feed as feed_repository
-from storage.repositories import incremental_lda as lda_repository
 from storage.unit_of_work import unit_of_work
 
-logger = logging.getLogger("contextweb")
 T = TypeVar("T")
 
 API_KEY_HEADER = "X-API-Key"
@@ -165,32 +159,22 @@ ReadSessionDep = Annotated[Session, Depends(read_session, scope="function")]
 WriteSessionDep = Annotated[Session, Depends(write_session, scope="function")]
 
 
-@dataclass(eq=False)
-class ModelWrite:
-    """One write to a model: its transaction and the version the model has once it commits."""
-
-    session: Session
-    version: int
-    version_saved: bool = False
-    """Set by a service whose own statements stored :attr:`version` (a scene's state row)."""
-    unchanged: bool = False
-    """Set when the write changed nothing (an idempotent replay): no new version, no notification."""
-
-
 @contextmanager
 def model_write(state: AppState, model: ModelRuntime) -> Iterator[ModelWrite]:
-    """The unit of work of a write to ``model`` (docs/scaling.md). A service sets ``model.changing``
-    before it changes the model's memory ahead of the commit (a scene), so that a request refused
-    before that (a 422) costs no reload.
+    """The unit of work of a write to ``model`` (docs/scaling.md): the model's writer runs it
+    (``ModelWriter.transaction`` in app/registry.py), and here its storage failures are counted
+    and answered as a 503 ``storage_unavailable``, or ``storage_busy`` when the database's lock
+    stayed held elsewhere past the busy timeout (that wait is the transaction's first statement:
+    memory is untouched then, and nothing is reloaded).
 
     Under the model's lock in this process and its lock in the database (its state row, or
     SQLite's write lock): the stored version is read; memory that is behind catches up from the
     rows written since; the write runs; the version is bumped and the other processes notified;
-    then the commit. Memory follows the database: if anything fails once memory may hold the
-    write, the model is marked unavailable and reloaded from one snapshot (at once if the
-    database answers, else on a later request); a storage failure is a 503 ``storage_unavailable``,
-    or ``storage_busy`` when the database's lock stayed held elsewhere past the busy timeout (that
-    wait is the transaction's first statement: memory is untouched then, and nothing is reloaded).
+    then the commit. Memory follows the database: a service asks the writer to change memory
+    ahead of the commit (a scene) only once the request is accepted, so that a request refused
+    before that (a 422) costs no reload; if anything fails once memory may hold the write, the
+    writer's one undo marks the model unavailable and reloads it from one snapshot (at once if
+    the database answers, else on a later request).
 
     Call it on a worker thread admitted by ``Admission.run_write`` (app/admission.py): then no other
     write of this process waits on ``model.lock``, only the reads that need it for a moment.
@@ -199,31 +183,9 @@ def model_write(state: AppState, model: ModelRuntime) -> Iterator[ModelWrite]:
     commit: while the write waits for a lock held elsewhere (another process's write, an outside
     ``sqlite3`` shell), the model's reads go on, from memory that still equals the database.
     """
-    if model.deleted:
-        raise ModelNotFound(model.id)
-    holding = False
     try:
-        with unit_of_work(state.write_sessions) as session:
-            stored = lda_repository.lock_version(session, model.id)  # the database's lock: wait here
-            model.lock.acquire()
-            holding = True
-            if model.deleted:
-                raise ModelNotFound(model.id)
-            if model.unavailable is not None:
-                state.registry.reload(model)
-            if stored is None:
-                state.registry.forget(model)
-                raise ModelNotFound(model.id)
-            if stored != model.version:
-                _catch_up_for_write(state, session, model)
-            write = ModelWrite(session, stored + 1)
+        with model.writer.transaction(state.write_sessions, state.registry) as write:
             yield write
-            if not write.unchanged:
-                if not write.version_saved:
-                    lda_repository.set_version(session, model.id, write.version)
-                feed_repository.notify_change(session, model.id)
-        if not write.unchanged:
-            model.version = write.version
         state.storage.record_success()
     except BaseException as error:
         failed = is_storage_failure(error)
@@ -231,15 +193,9 @@ def model_write(state: AppState, model: ModelRuntime) -> Iterator[ModelWrite]:
             state.metrics.storage_failed("busy" if is_storage_busy(error) else "unavailable")
         if failed and not is_storage_busy(error):  # a lock held elsewhere says nothing of the database's health
             state.storage.record_failure(storage_failure_reason(error))
-        if model.changing:
-            _restore(state, model, error)  # under the model's lock: memory changed only once it was held
         if failed:
             raise storage_error(error) from error
         raise
-    finally:
-        model.changing = False
-        if holding:
-            model.lock.release()
 
 
 def write_model(state: AppState, model: ModelRuntime, work: Callable[[Session], T]) -> T:
@@ -247,30 +203,3 @@ def write_model(state: AppState, model: ModelRuntime, work: Callable[[Session], 
     ``Admission.run_write`` when its service needs nothing else of :class:`ModelWrite`."""
     with model_write(state, model) as write:
         return work(write.session)
-
-
-def _catch_up_for_write(state: AppState, session: Session, model: ModelRuntime) -> None:
-    """Catch up under the write lock; changes that do not fit memory make the model unavailable
-    (a consistency problem of the stored state, never the client's invalid input)."""
-    model.changing = True  # until the catch-up completes, memory is unproven
-    try:
-        catch_up(session, model)
-    except Exception as error:
-        if is_storage_failure(error):
-            raise
-        _restore(state, model, error)
-        raise ModelUnavailable(model.id, model.unavailable or "its stored changes do not fit memory") from error
-    model.changing = False
-
-
-def _restore(state: AppState, model: ModelRuntime, error: BaseException) -> None:
-    """Memory may hold a write the database does not: reload it now, or leave it unavailable."""
-    model.changing = False
-    if model.deleted:
-        return
-    model.mark_unavailable(f"a write failed ({type(error).__name__}) and its model is being reloaded")
-    model.reload_after = 0.0
-    try:
-        state.registry.reload(model)
-    except Exception:  # noqa: BLE001 - the model stays unavailable; a later request reloads it
-        logger.warning("model %s stays unavailable until the database answers: %s", model.id, model.unavailable)

@@ -1,8 +1,11 @@
 """The models in memory: one :class:`ModelRuntime` per stored model, kept equal to the database.
 
-A runtime holds the model's Incremental-LDA, its fitted perception (prototypes,
-concept web, learned behaviour effects), the version of the stored state it
-equals and the lock that makes it this process's single writer of the model.
+A runtime is what the model is (fixed), its :class:`FittedPerception` (prototypes,
+concept web, behaviour effects: frozen, replaced whole by a fit) and its
+:class:`ModelWriter`, which owns the model's lock and its learning state (the
+Incremental-LDA, the version of the stored state memory equals, availability) and
+is the only code that changes them; its ``transaction`` commits a write or, in
+its ``undo``, the one place for it, undoes what memory holds of a failed one.
 The database is the truth, and memory follows it (docs/scaling.md):
 
 - :func:`load_runtime` rebuilds a runtime exactly (counts, assignments, random
@@ -20,7 +23,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -35,15 +38,17 @@ from app.services.limits import VocabularyLimits
 from app.services.perception import Perception
 from app.settings import DEFAULT_CHECKPOINT_INTERVAL
 from core.concept_web import ConceptWeb
-from core.context.incremental import ContextModelState, IncrementalLDA
+from core.context.incremental import ContextModelState, IncrementalLDA, SceneUpdate
 from core.errors import InvalidInputError
 from core.planning import BehaviourEffects, Workspace, learn_effects
 from core.prototypes.prototypes import PrototypeSet
 from core.vocabulary import Vocabulary
 from storage.database import snapshot
 from storage.models import Model, TrainingObject
+from storage.repositories import feed as feed_repository
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import models as model_repository
+from storage.unit_of_work import unit_of_work
 
 logger = logging.getLogger("contextweb")
 
@@ -60,98 +65,236 @@ class ModelSummary:
     vocabulary_size: int
 
 
-@dataclass(eq=False)
-class ModelRuntime:
-    """One model in memory. Mutate it only while holding :attr:`lock`."""
+@dataclass(frozen=True)
+class FittedPerception:
+    """What the model's last committed fit made of its training objects: core's perception
+    (vocabulary, the prototypes of Eq. 1, the concept web of Eqs. 2-4, with the web's memo of
+    settled named webs) and the behaviours' effects the planner uses (§V-E).
 
-    id: str
-    name: str
-    seed: int
-    sigma: float
-    created_at: datetime
-    hyperparameters: dict[str, Any]
-    vocabulary: Vocabulary
-    incremental_lda: IncrementalLDA
-    word_kinds: list[str | None]
+    Replaced whole when a fit commits or memory catches up past another process's fit, never
+    changed in place: a request that read it without the lock (a scene's perception) keeps a
+    consistent one, and notices a fit by identity.
+    """
+
     perception: Perception
-    effects: BehaviourEffects | None
-    training_object_count: int
-    summary: ModelSummary = ModelSummary(0, 0, 0)
-    version: int = 0
-    """The stored version this memory equals (docs/scaling.md)."""
+    effects: BehaviourEffects | None = None
     fitted_at: datetime | None = None
-    lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
-    changing: bool = False
-    """True while the in-memory state holds changes not yet committed."""
-    deleted: bool = False
-    unavailable: str | None = None
-    """Why the model does not serve (its memory is not proven equal to the database), or None."""
-    reload_after: float = 0.0
-    """``time.monotonic()`` before which no reload is tried (a database that fails is not hammered)."""
-    failed_version: int | None = None
-    """The stored version whose state failed its check: reloaded again only once that version moves."""
-    vocabulary_limits: VocabularyLimits = field(default_factory=VocabularyLimits.defaults)
-    """How far scenes may grow the vocabulary: the registry's, set when the model enters it."""
-    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL
-    """Every this-many scenes the model's checkpoint is rewritten (the registry's, as above)."""
 
     @classmethod
     def from_row(
-        cls,
-        row: Model,
-        *,
+        cls, row: Model, vocabulary: Vocabulary, effect_vectors: list[list[float]], behaviours: list[str]
+    ) -> FittedPerception:
+        """The fit stored in ``row`` (unfitted parts None), with the effects of its training objects."""
+        perception = fitted_perception(vocabulary, row.prototypes, row.concept_web)
+        if row.fitted_at is None:
+            return cls(perception)
+        return cls(perception, behaviour_effects(effect_vectors, behaviours), row.fitted_at)
+
+
+@dataclass(eq=False)
+class ModelWrite:
+    """One write to a model: its transaction and the version the model has once it commits."""
+
+    session: Session
+    version: int
+    version_saved: bool = False
+    """Set by a service whose own statements stored :attr:`version` (a scene's state row)."""
+    unchanged: bool = False
+    """Set when the write changed nothing (an idempotent replay): no new version, no notification."""
+
+
+class ModelWriter:
+    """The one writer of a model's memory in this process: it owns the model's lock and its
+    learning state (Incremental-LDA, the words' kinds, the training object count, the version
+    memory equals, the published summary, whether it serves) and the reference to its
+    :class:`FittedPerception`, and it is the only code that changes them (docs/scaling.md).
+
+    Every write runs in :meth:`transaction`: services ask the writer to apply a change to memory
+    (:meth:`learn_scene`, :meth:`count_training_objects`, :meth:`install_fit`); what must wait
+    for the commit is applied after it, and a change that memory already holds is undone by
+    :meth:`undo` if the write fails: the one place where memory that may lead the database is
+    reloaded from it, or else marked unavailable. Read the state through :class:`ModelRuntime`;
+    readers that need several of its values consistent hold :attr:`lock` while they read.
+    """
+
+    def __init__(
+        self,
+        model_id: str,
+        fitted: FittedPerception,
         incremental_lda: IncrementalLDA,
         word_kinds: list[str | None],
-        perception: Perception,
-        effects: BehaviourEffects | None,
         training_object_count: int,
-    ) -> ModelRuntime:
-        """The runtime of the model stored as ``row`` with this in-memory state, its summary published."""
-        runtime = cls(
-            id=row.id,
-            name=row.name,
-            seed=row.seed,
-            sigma=row.sigma,
-            created_at=row.created_at,
-            hyperparameters=dict(row.hyperparameters),
-            vocabulary=perception.vocabulary,
-            incremental_lda=incremental_lda,
-            word_kinds=word_kinds,
-            perception=perception,
-            effects=effects,
-            training_object_count=training_object_count,
-            fitted_at=row.fitted_at,
-        )
-        runtime.publish_summary()
-        return runtime
+        *,
+        version: int = 0,
+        unavailable: str | None = None,
+        failed_version: int | None = None,
+    ) -> None:
+        self.id = model_id
+        self.lock = threading.Lock()
+        self.fitted = fitted
+        self.incremental_lda = incremental_lda
+        self.word_kinds = word_kinds
+        self.training_object_count = training_object_count
+        self.version = version
+        """The stored version this memory equals (docs/scaling.md)."""
+        self.summary = ModelSummary(0, 0, 0)
+        self.deleted = False
+        self.unavailable = unavailable
+        """Why the model does not serve (its memory is not proven equal to the database), or None."""
+        self.reload_after = 0.0
+        """``time.monotonic()`` before which no reload is tried (a database that fails is not hammered)."""
+        self.failed_version = failed_version
+        """The stored version whose state failed its check: reloaded again only once that version moves."""
+        self._changed = False
+        """True while memory holds changes the database may not (from the change to the commit)."""
+        self._on_commit: list[Callable[[], None]] = []
+        """What waits for the commit of the open write."""
+        self._writing = False
+        self.publish_summary()
 
-    @classmethod
-    def unloadable(cls, row: Model, reason: str) -> ModelRuntime:
-        """The stand-in of a stored model whose state failed its load: listed, answering 503 with ``reason``."""
+    # The unit of work.
+
+    @contextmanager
+    def transaction(self, write_sessions: sessionmaker[Session], registry: ModelRegistry) -> Iterator[ModelWrite]:
+        """One write to the model, committed or undone (app/deps.py ``model_write`` documents the order).
+
+        Under the database's lock (the model's state row, or SQLite's write lock), taken first,
+        then this process's lock: the stored version is read; memory that is behind catches up
+        from the rows written since; the block runs; the version is bumped and the other processes
+        notified; the commit; then the changes that waited for it. If anything fails once memory
+        may hold the write, :meth:`undo` runs under the lock.
+        """
+        if self.deleted:
+            raise ModelNotFound(self.id)
+        holding = False
         try:
-            vocabulary = Vocabulary.from_dict(row.vocabulary)
-        except Exception:  # noqa: BLE001 - a corrupt vocabulary is one more reason the model cannot load
-            vocabulary = Vocabulary(nouns=("unknown",), adjective_pairs=(), verbs=())
-        runtime = cls.from_row(
-            row,
-            incremental_lda=IncrementalLDA(),
-            word_kinds=[],
-            perception=Perception(vocabulary),
-            effects=None,
-            training_object_count=0,
-        )
-        runtime.unavailable = reason
-        return runtime
+            with unit_of_work(write_sessions) as session:
+                stored = lda_repository.lock_version(session, self.id)  # the database's lock: wait here
+                self.lock.acquire()
+                holding = True
+                if self.deleted:
+                    raise ModelNotFound(self.id)
+                if self.unavailable is not None:
+                    registry.reload(self)
+                if stored is None:
+                    registry.forget(self)
+                    raise ModelNotFound(self.id)
+                if stored != self.version:
+                    self._catch_up_for_write(session, registry)
+                write = ModelWrite(session, stored + 1)
+                self._writing = True
+                yield write
+                if not write.unchanged:
+                    if not write.version_saved:
+                        lda_repository.set_version(session, self.id, write.version)
+                    feed_repository.notify_change(session, self.id)
+            self._committed(write)
+        except BaseException as error:
+            if self._changed:
+                self.undo(error, registry)  # under the lock: memory changed only once it was held
+            raise
+        finally:
+            self._changed = self._writing = False
+            self._on_commit.clear()
+            if holding:
+                self.lock.release()
 
-    def replace_with(self, fresh: ModelRuntime) -> None:
-        """Take ``fresh``'s state (a reload), keeping this object, its lock and its subscribers' references."""
-        self.vocabulary = fresh.vocabulary
+    def _committed(self, write: ModelWrite) -> None:
+        if not write.unchanged:
+            self.version = write.version
+        for change in self._on_commit:
+            change()
+
+    def _catch_up_for_write(self, session: Session, registry: ModelRegistry) -> None:
+        """Catch up under the write lock; changes that do not fit memory make the model unavailable
+        (a consistency problem of the stored state, never the client's invalid input)."""
+        self._changed = True  # until the catch-up completes, memory is unproven
+        try:
+            catch_up(session, self)
+        except Exception as error:
+            if is_storage_failure(error):
+                raise
+            self.undo(error, registry)
+            raise ModelUnavailable(self.id, self.unavailable or "its stored changes do not fit memory") from error
+        self._changed = False
+
+    def undo(self, error: BaseException, registry: ModelRegistry, *, reload_now: bool = True) -> None:
+        """Memory may hold what the database does not (a write or a catch-up failed): the one undo.
+
+        The model is marked unavailable (503 ``model_unavailable``), then reloaded from one
+        snapshot: at once after a failed write (the database answered its statements), or by a
+        later request after a failed catch-up of a read (a backoff: its database just failed).
+        A reload that fails leaves the model unavailable until one succeeds. Under :attr:`lock`.
+        """
+        self._changed = False
+        self._on_commit.clear()
+        if self.deleted:
+            return
+        if not reload_now:
+            _mark_failed(self, error, "catching up with the database failed")
+            return
+        self.mark_unavailable(f"a write failed ({type(error).__name__}) and its model is being reloaded")
+        self.reload_after = 0.0
+        try:
+            registry.reload(self)
+        except Exception:  # noqa: BLE001 - the model stays unavailable; a later request reloads it
+            logger.warning("model %s stays unavailable until the database answers: %s", self.id, self.unavailable)
+
+    # The changes a write asks for, inside :meth:`transaction`.
+
+    def learn_scene(self, words: list[str], kind_of: Callable[[str], str | None]) -> SceneUpdate:
+        """Incremental-LDA learns ``words`` (Algorithm 2's loop body), new words get ``kind_of(word)``;
+        memory holds the scene from here (undone if the write fails), the summary follows the commit."""
+        self._check_writing()
+        self._changed = True
+        update = self.incremental_lda.learn_scene(words)
+        self.word_kinds.extend(kind_of(name) for name in update.vocabulary_additions)
+        self._on_commit.append(self.publish_summary)
+        return update
+
+    def count_training_objects(self, total: int) -> None:
+        """The model has ``total`` training objects once the write commits."""
+        self._check_writing()
+        self._on_commit.append(lambda: setattr(self, "training_object_count", total))
+
+    def install_fit(self, fitted: FittedPerception) -> None:
+        """``fitted`` replaces the model's perception once the write commits."""
+        self._check_writing()
+        self._on_commit.append(lambda: setattr(self, "fitted", fitted))
+
+    def _check_writing(self) -> None:
+        if not self._writing:
+            raise RuntimeError(f"model {self.id}: a change outside a write (ModelWriter.transaction)")
+
+    # Following the database (the registry reads it; the writer applies what it read).
+
+    def apply_changes(
+        self, changes: lda_repository.StoredChanges, fitted: FittedPerception | None, training_object_count: int
+    ) -> None:
+        """Another process's writes, read from the rows since :attr:`version` (``fitted`` when it fitted)."""
+        self._changed = True
+        if fitted is not None:
+            self.fitted = fitted
+        self.incremental_lda.catch_up(
+            new_words=[name for name, _ in changes.new_words],
+            n_contexts=changes.context_count,
+            tokens=changes.tokens,
+            count_entries=changes.count_entries,
+            scene_count=changes.scene_count,
+            rng_state=changes.state["rng_state"],
+        )
+        self.word_kinds.extend(kind for _, kind in changes.new_words)
+        self.training_object_count = training_object_count
+        self.version = changes.version
+        self.publish_summary()
+        self._changed = False
+
+    def replace(self, fresh: ModelWriter) -> None:
+        """Take ``fresh``'s state (a reload), keeping this writer, its lock and its readers' references."""
+        self.fitted = fresh.fitted
         self.incremental_lda = fresh.incremental_lda
         self.word_kinds = fresh.word_kinds
-        self.perception = fresh.perception
-        self.effects = fresh.effects
         self.training_object_count = fresh.training_object_count
-        self.fitted_at = fresh.fitted_at
         self.version = fresh.version
         self.unavailable = None
         self.failed_version = None
@@ -162,9 +305,134 @@ class ModelRuntime:
         self.failed_version = failed_version
         self.reload_after = time.monotonic() + RELOAD_BACKOFF_SECONDS
 
+    def forget(self) -> None:
+        """The model was deleted (here or by another process)."""
+        self.deleted = True
+
     def publish_summary(self) -> None:
         lda = self.incremental_lda
         self.summary = ModelSummary(lda.n_contexts, lda.n_scenes, len(lda.vocabulary))
+
+
+@dataclass(eq=False)
+class ModelRuntime:
+    """One model in memory: what it is (fixed once registered), its :class:`ModelWriter`, and
+    read-only views of the writer's state. Nothing else changes a model's memory."""
+
+    id: str
+    name: str
+    seed: int
+    sigma: float
+    created_at: datetime
+    hyperparameters: dict[str, Any]
+    writer: ModelWriter = field(repr=False)
+    vocabulary_limits: VocabularyLimits = field(default_factory=VocabularyLimits.defaults)
+    """How far scenes may grow the vocabulary: the registry's, set when the model enters it."""
+    checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL
+    """Every this-many scenes the model's checkpoint is rewritten (the registry's, as above)."""
+
+    @classmethod
+    def from_row(
+        cls,
+        row: Model,
+        *,
+        fitted: FittedPerception,
+        incremental_lda: IncrementalLDA,
+        word_kinds: list[str | None],
+        training_object_count: int,
+        version: int = 0,
+        unavailable: str | None = None,
+        failed_version: int | None = None,
+    ) -> ModelRuntime:
+        """The runtime of the model stored as ``row`` with this in-memory state, its summary published."""
+        return cls(
+            id=row.id,
+            name=row.name,
+            seed=row.seed,
+            sigma=row.sigma,
+            created_at=row.created_at,
+            hyperparameters=dict(row.hyperparameters),
+            writer=ModelWriter(
+                row.id,
+                fitted,
+                incremental_lda,
+                word_kinds,
+                training_object_count,
+                version=version,
+                unavailable=unavailable,
+                failed_version=failed_version,
+            ),
+        )
+
+    @classmethod
+    def unloadable(cls, row: Model, reason: str, failed_version: int | None) -> ModelRuntime:
+        """The stand-in of a stored model whose state failed its load: listed, answering 503 with ``reason``."""
+        try:
+            vocabulary = Vocabulary.from_dict(row.vocabulary)
+        except Exception:  # noqa: BLE001 - a corrupt vocabulary is one more reason the model cannot load
+            vocabulary = Vocabulary(nouns=("unknown",), adjective_pairs=(), verbs=())
+        return cls.from_row(
+            row,
+            fitted=FittedPerception(Perception(vocabulary), fitted_at=row.fitted_at),
+            incremental_lda=IncrementalLDA(),
+            word_kinds=[],
+            training_object_count=0,
+            unavailable=reason,
+            failed_version=failed_version,
+        )
+
+    @property
+    def lock(self) -> threading.Lock:
+        """The model's lock in this process (its writer's): hold it to read several values consistently."""
+        return self.writer.lock
+
+    @property
+    def fitted(self) -> FittedPerception:
+        return self.writer.fitted
+
+    @property
+    def perception(self) -> Perception:
+        return self.writer.fitted.perception
+
+    @property
+    def vocabulary(self) -> Vocabulary:
+        return self.writer.fitted.perception.vocabulary
+
+    @property
+    def effects(self) -> BehaviourEffects | None:
+        return self.writer.fitted.effects
+
+    @property
+    def fitted_at(self) -> datetime | None:
+        return self.writer.fitted.fitted_at
+
+    @property
+    def incremental_lda(self) -> IncrementalLDA:
+        return self.writer.incremental_lda
+
+    @property
+    def word_kinds(self) -> Sequence[str | None]:
+        return self.writer.word_kinds
+
+    @property
+    def training_object_count(self) -> int:
+        return self.writer.training_object_count
+
+    @property
+    def summary(self) -> ModelSummary:
+        return self.writer.summary
+
+    @property
+    def version(self) -> int:
+        return self.writer.version
+
+    @property
+    def unavailable(self) -> str | None:
+        return self.writer.unavailable
+
+    @property
+    def deleted(self) -> bool:
+        return self.writer.deleted
 
     def kind_of(self, word: str) -> str | None:
         if word in self.vocabulary:
@@ -216,16 +484,14 @@ def load_runtime(session: Session, row: Model) -> ModelRuntime:
     stored = lda_repository.load_start(session, row.id)
     incremental_lda = stored_incremental_lda(stored, dict(row.hyperparameters))
     vectors, behaviours, training_count = training_effects(session, row.id)
-    runtime = ModelRuntime.from_row(
+    return ModelRuntime.from_row(
         row,
+        fitted=FittedPerception.from_row(row, Vocabulary.from_dict(row.vocabulary), vectors, behaviours),
         incremental_lda=incremental_lda,
         word_kinds=stored.word_kinds,
-        perception=fitted_perception(Vocabulary.from_dict(row.vocabulary), row.prototypes, row.concept_web),
-        effects=behaviour_effects(vectors, behaviours) if row.fitted_at is not None else None,
         training_object_count=training_count,
+        version=stored.version,
     )
-    runtime.version = stored.version
-    return runtime
 
 
 def stored_incremental_lda(stored: lda_repository.StoredStart, hyperparameters: dict[str, Any]) -> IncrementalLDA:
@@ -288,40 +554,29 @@ def _counts(words: np.ndarray, contexts: np.ndarray, n_contexts: int, n_words: i
     return flat.reshape(n_contexts, n_words).astype(np.int32)
 
 
-def catch_up(session: Session, model: ModelRuntime) -> bool:
-    """Bring ``model`` to the stored version from the rows written since its own (in one snapshot, or
+def catch_up(session: Session, writer: ModelWriter) -> bool:
+    """Bring the model to the stored version from the rows written since its own (in one snapshot, or
     under the model's write lock); False when the model is gone. Raises what the load would: an
-    error here leaves memory unproven, and the caller marks the model unavailable."""
+    error here leaves memory unproven, and the caller has the writer undo it."""
     changes = lda_repository.load_changes(
-        session, model.id, since_version=model.version, word_count=len(model.incremental_lda.vocabulary)
+        session, writer.id, since_version=writer.version, word_count=len(writer.incremental_lda.vocabulary)
     )
     if changes is None:
         return False
-    if changes.version == model.version:
+    if changes.version == writer.version:
         return True
     fitted_at, training_count = session.execute(
-        select(Model.fitted_at, select(func.count()).where(TrainingObject.model_id == model.id).scalar_subquery())
-        .where(Model.id == model.id)
+        select(
+            Model.fitted_at, select(func.count()).where(TrainingObject.model_id == writer.id).scalar_subquery()
+        ).where(Model.id == writer.id)
     ).one()
-    if fitted_at != model.fitted_at:
-        row = model_repository.get_model(session, model.id)
+    fitted = None
+    if fitted_at != writer.fitted.fitted_at:
+        row = model_repository.get_model(session, writer.id)
         assert row is not None
-        vectors, behaviours, _ = training_effects(session, model.id)
-        model.perception = fitted_perception(model.vocabulary, row.prototypes, row.concept_web)
-        model.effects = behaviour_effects(vectors, behaviours) if row.fitted_at is not None else None
-        model.fitted_at = row.fitted_at
-    model.incremental_lda.catch_up(
-        new_words=[name for name, _ in changes.new_words],
-        n_contexts=changes.context_count,
-        tokens=changes.tokens,
-        count_entries=changes.count_entries,
-        scene_count=changes.scene_count,
-        rng_state=changes.state["rng_state"],
-    )
-    model.word_kinds.extend(kind for _, kind in changes.new_words)
-    model.training_object_count = int(training_count)
-    model.version = changes.version
-    model.publish_summary()
+        vectors, behaviours, _ = training_effects(session, writer.id)
+        fitted = FittedPerception.from_row(row, writer.fitted.perception.vocabulary, vectors, behaviours)
+    writer.apply_changes(changes, fitted, int(training_count))
     return True
 
 
@@ -355,19 +610,23 @@ class ModelRegistry:
         return sorted(self._models.values(), key=lambda model: (model.created_at, model.id))
 
     def add(self, model: ModelRuntime) -> None:
-        model.vocabulary_limits = self.vocabulary_limits
-        model.checkpoint_interval = self.checkpoint_interval
+        self._configure(model)
         with self._lock:
             self._models[model.id] = model
+
+    def _configure(self, model: ModelRuntime) -> None:
+        """The registry's settings, given to a model as it enters (the only change of its fixed part)."""
+        model.vocabulary_limits = self.vocabulary_limits
+        model.checkpoint_interval = self.checkpoint_interval
 
     def remove(self, model_id: str) -> None:
         with self._lock:
             self._models.pop(model_id, None)
 
-    def forget(self, model: ModelRuntime) -> None:
+    def forget(self, writer: ModelWriter) -> None:
         """The model was deleted (here or by another process)."""
-        model.deleted = True
-        self.remove(model.id)
+        writer.forget()
+        self.remove(writer.id)
 
     def load_all(self, session: Session) -> None:
         """Every stored model; one whose state fails its load is registered unavailable, never fatal."""
@@ -388,13 +647,13 @@ class ModelRegistry:
         model = self._models.get(model_id)
         if version is None:
             if model is not None:
-                self.forget(model)
+                self.forget(model.writer)
             raise ModelNotFound(model_id)
         if model is None:
             return self._load_new(model_id)
         if model.version != version or model.unavailable is not None:
             with model.lock:
-                self.refresh(model)
+                self.refresh(model.writer)
         return model
 
     def _load_new(self, model_id: str) -> ModelRuntime:
@@ -406,33 +665,32 @@ class ModelRegistry:
                     if row is None:
                         raise ModelNotFound(model_id)
                     model = _loaded_or_unavailable(session, row)
-                model.vocabulary_limits = self.vocabulary_limits
-                model.checkpoint_interval = self.checkpoint_interval
+                self._configure(model)
                 self._models[model_id] = model
         if model.unavailable is not None:
             raise ModelUnavailable(model.id, model.unavailable)
         return model
 
-    def refresh(self, model: ModelRuntime) -> None:
-        """Under ``model.lock``: catch ``model`` up, or reload it if it is unavailable. Raises 404 when
+    def refresh(self, writer: ModelWriter) -> None:
+        """Under the model's lock: catch it up, or reload it if it is unavailable. Raises 404 when
         it was deleted, 503 while it cannot be proven equal to the database."""
-        if model.deleted:
-            raise ModelNotFound(model.id)
-        if model.unavailable is None:
+        if writer.deleted:
+            raise ModelNotFound(writer.id)
+        if writer.unavailable is None:
             try:
                 with self._snapshot() as session:
-                    found = catch_up(session, model)
+                    found = catch_up(session, writer)
             except Exception as error:
-                _mark_failed(model, error, "catching up with the database failed")
-                raise _unavailable(model, error) from error
+                writer.undo(error, self, reload_now=False)
+                raise _unavailable(writer, error) from error
             if not found:
-                self.forget(model)
-                raise ModelNotFound(model.id)
+                self.forget(writer)
+                raise ModelNotFound(writer.id)
             return
-        self.reload(model)
+        self.reload(writer)
 
-    def reload(self, model: ModelRuntime) -> None:
-        """Under ``model.lock``: replace ``model``'s memory by the stored state, read in one snapshot."""
+    def reload(self, model: ModelWriter) -> None:
+        """Under the model's lock: replace its memory by the stored state, read in one snapshot."""
         if time.monotonic() < model.reload_after:
             raise ModelUnavailable(model.id, model.unavailable or "reloading", retry_after=1)
         try:
@@ -456,7 +714,7 @@ class ModelRegistry:
         except Exception as error:
             _mark_failed(model, error, "reloading from the database failed")
             raise _unavailable(model, error) from error
-        model.replace_with(fresh)
+        model.replace(fresh.writer)
         logger.info("model %s reloaded from the database at version %d", model.id, model.version)
 
     def synchronise(self) -> list[ModelRuntime]:
@@ -465,7 +723,7 @@ class ModelRegistry:
         with _storage_errors(), self._snapshot() as session:
             versions = lda_repository.stored_versions(session)
         for model_id in set(self._models) - set(versions):
-            self.forget(self._models[model_id])
+            self.forget(self._models[model_id].writer)
         for model_id, version in versions.items():
             model = self._models.get(model_id)
             try:
@@ -473,7 +731,7 @@ class ModelRegistry:
                     self._load_new(model_id)
                 elif model.version != version or model.unavailable is not None:
                     with model.lock:
-                        self.refresh(model)
+                        self.refresh(model.writer)
             except (ModelUnavailable, ModelNotFound):
                 continue  # listed as unavailable, or gone meanwhile
         return self.all()
@@ -498,9 +756,7 @@ def _loaded_or_unavailable(session: Session, row: Model) -> ModelRuntime:
             raise
         reason = _inconsistency(row.id, error)
         logger.error("%s", reason)
-        runtime = ModelRuntime.unloadable(row, reason)
-        runtime.failed_version = lda_repository.stored_version(session, row.id)
-        return runtime
+        return ModelRuntime.unloadable(row, reason, lda_repository.stored_version(session, row.id))
 
 
 def _inconsistency(model_id: str, error: BaseException) -> str:
@@ -513,14 +769,14 @@ def _inconsistency(model_id: str, error: BaseException) -> str:
     )
 
 
-def _mark_failed(model: ModelRuntime, error: BaseException, what: str) -> None:
+def _mark_failed(model: ModelWriter, error: BaseException, what: str) -> None:
     if is_storage_failure(error):
         model.mark_unavailable(f"{what} ({storage_failure_reason(error)}); it is reloaded once the database answers")
     else:
         model.mark_unavailable(f"{what}: {_inconsistency(model.id, error)}")
 
 
-def _unavailable(model: ModelRuntime, error: BaseException) -> Exception:
+def _unavailable(model: ModelWriter, error: BaseException) -> Exception:
     if is_storage_failure(error):
         return storage_error(error)
     return ModelUnavailable(model.id, model.unavailable or "unavailable")

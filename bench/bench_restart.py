@@ -55,7 +55,6 @@ from storage.migrations import upgrade_to_head
 from storage.models import IncrementalLdaCheckpoint
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import models as model_repository
-from storage.unit_of_work import unit_of_work
 from tests.conftest import synthetic_training_objects
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -95,14 +94,14 @@ def build(path: Path, size: int, pool: list[dict[str, Any]]) -> tuple[str, float
         started = time.perf_counter()
         learned = 0
         while learned < size:
-            with model.lock, unit_of_work(state.write_sessions) as session:
-                version = model.version
-                for _ in range(min(BATCH, size - learned)):
-                    version += 1
+            with model.writer.transaction(state.write_sessions, state.registry) as write:
+                for i in range(min(BATCH, size - learned)):
+                    if i:
+                        write.version += 1  # one version per scene, as the service gives them
                     prepared = scene_service.prepare_scene(model, bodies[learned % len(bodies)])
-                    scene_service.learn_scene(session, model, version, prepared, None)
+                    scene_service.learn_scene(write.session, model, write.version, prepared, None)
                     learned += 1
-            model.version = version
+                write.version_saved = True
             if learned % 50_000 < BATCH:
                 print(f"  {learned:,} scenes in {time.perf_counter() - started:.0f} s", flush=True)
         seconds = time.perf_counter() - started

@@ -7,7 +7,7 @@ import uuid
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput
-from app.registry import ModelRegistry, ModelRuntime, jsonable
+from app.registry import FittedPerception, ModelRegistry, ModelRuntime, jsonable
 from app.schemas.models import ModelCreate, ModelRead, VocabularySchema
 from app.services.perception import Perception
 from app.stream import CLOSE_NORMAL, StreamHub
@@ -46,10 +46,9 @@ def create_model(session: Session, registry: ModelRegistry, body: ModelCreate) -
     )
     model = ModelRuntime.from_row(
         row,
+        fitted=FittedPerception(Perception(vocabulary)),
         incremental_lda=incremental_lda,
         word_kinds=list(vocabulary.kinds),
-        perception=Perception(vocabulary),
-        effects=None,
         training_object_count=0,
     )
     after_commit(session, lambda: registry.add(model))
@@ -72,7 +71,7 @@ def delete_model(session: Session, registry: ModelRegistry, hub: StreamHub, mode
     model_repository.delete_model(session, model.id)
 
     def forget() -> None:
-        registry.forget(model)
+        registry.forget(model.writer)
         hub.close_model(model.id, CLOSE_NORMAL, "model deleted")
 
     after_commit(session, forget)

@@ -20,7 +20,8 @@ Then under the model's write lock, :func:`learn_scene`:
 5. everything the update changed is written in this transaction: scene row with
    its answer, tokens, reassigned tokens, n_kw entries, new words, random state;
    every ``checkpoint_interval``-th scene also the model's checkpoint;
-6. after the commit: the summary is published. The stream learns of the scene from
+6. after the commit: the summary is published (by the model's writer, which also undoes
+   step 4 if the write fails: app/registry.py ``ModelWriter``). The stream learns of the scene from
    the database, on every process (app/feed.py).
 """
 
@@ -113,17 +114,14 @@ def learn_scene(
     check_vocabulary_growth(model, words)
     analysis = in_context(model.perception, model.incremental_lda, analysis, sigma=model.sigma, seed=model.seed)
     first_token = model.incremental_lda.lda_state.n_tokens
-    model.changing = True  # from here until the commit, memory holds what the database may not
     started = time.perf_counter()
-    update = model.incremental_lda.learn_scene(words)
+    update = model.writer.learn_scene(words, partial(_kind, model, body))  # memory holds it until the commit
     update_seconds = time.perf_counter() - started
-    model.word_kinds.extend(_kind(model, body, name) for name in update.vocabulary_additions)
     answer = _answer(
         model, update, analysis, datetime.now(UTC), partial(context_repository.context_label, session, model.id)
     )
     answer_json = answer.model_dump_json()
     _save(session, model, update, first_token, version, answer, answer_json, idempotency_key, request_hash)
-    after_commit(session, model.publish_summary)
     if metrics is not None:
         after_commit(session, partial(metrics.scene_learned, model.id, update_seconds, update.growth_checked))
     return answer_json, False

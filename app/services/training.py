@@ -15,7 +15,7 @@ import numpy as np
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput, ModelNotFitted
-from app.registry import ModelRuntime, behaviour_effects, jsonable
+from app.registry import FittedPerception, ModelRuntime, behaviour_effects, jsonable
 from app.schemas.training import (
     FitCreate,
     FitRead,
@@ -32,18 +32,13 @@ from core.features.layout import EFFECT_SIZE
 from core.prototypes.prototypes import RELEVANCE_SYMBOLS, fit_prototypes, format_prototype_table
 from core.vocabulary import Vocabulary
 from storage.repositories import models as model_repository
-from storage.unit_of_work import after_commit
 
 
 def add_training_objects(session: Session, model: ModelRuntime, body: TrainingBatchCreate) -> TrainingBatchRead:
     rows = [_training_row(model.vocabulary, obj, f"objects[{i}]") for i, obj in enumerate(body.objects)]
     model_repository.add_training_objects(session, model.id, rows)
     total = model.training_object_count + len(rows)
-
-    def count() -> None:
-        model.training_object_count = total
-
-    after_commit(session, count)
+    model.writer.count_training_objects(total)
     return TrainingBatchRead(added=len(rows), training_object_count=total)
 
 
@@ -122,12 +117,7 @@ def fit(session: Session, model: ModelRuntime, body: FitCreate) -> FitRead:
         fitted_at=fitted_at,
     )
 
-    def install() -> None:
-        model.perception = Perception(vocabulary, prototypes, concept_web)
-        model.effects = effects
-        model.fitted_at = fitted_at
-
-    after_commit(session, install)
+    model.writer.install_fit(FittedPerception(Perception(vocabulary, prototypes, concept_web), effects, fitted_at))
     return FitRead(
         model_id=model.id,
         method=prototypes.method,

@@ -48,7 +48,7 @@ from app.registry import load_runtime, stored_incremental_lda
 from app.schemas.scenes import SceneCreate
 from app.services import scenes as scene_service
 from app.settings import Settings
-from bench.bench_service import LeanClient, Server, _summary, concept_scenes
+from bench.bench_service import LatencySummary, LeanClient, Server, _summary, concept_scenes
 from sim.world import World
 from storage.database import create_database_engine, create_session_makers, snapshot
 from storage.migrations import upgrade_to_head
@@ -228,7 +228,7 @@ def _rss(pid: int) -> int:
     return 0
 
 
-def latency(server: Server, model_id: str, scenes: list[dict[str, Any]]) -> dict[str, float]:
+def latency(server: Server, model_id: str, scenes: list[dict[str, Any]]) -> LatencySummary:
     client = LeanClient(server.port)
     try:
         return _summary(client.post_all(model_id, scenes))
@@ -249,9 +249,9 @@ def main() -> dict:
     later = concept_scenes(world, LATENCY_SCENES, seed=8)
     result: dict[str, Any] = {"sizes": {}, "synthetic": {}}
     for scenes, tokens in synthetic:
-        figures = synthetic_load(scenes, tokens)
-        result["synthetic"][f"{scenes}x{tokens}"] = figures
-        print(f"synthetic {scenes:,} scenes x {tokens} tokens: {figures}", flush=True)
+        load_figures = synthetic_load(scenes, tokens)
+        result["synthetic"][f"{scenes}x{tokens}"] = load_figures
+        print(f"synthetic {scenes:,} scenes x {tokens} tokens: {load_figures}", flush=True)
     if not sizes:
         return _write(result)
     with tempfile.TemporaryDirectory(prefix="bench_restart_") as directory:

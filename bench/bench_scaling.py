@@ -46,7 +46,7 @@ import time
 import traceback
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import httpx
 
@@ -74,6 +74,17 @@ PREVIOUS_LATENCY_MS = {"sqlite": (2.1, 7.5), "postgresql": (4.1, 8.5)}
 PREVIOUS_PIPELINE_RATIO = {"sqlite": 5.6, "postgresql": 11.0}
 """The same p50 over the in-process pipeline then (its value: docs/benchmarks.md)."""
 BASELINE_GETS = 50
+
+
+class ScalingSizes(TypedDict):
+    """How many scenes each part of the run posts, and how often it repeats (``--quick``: fewer)."""
+
+    throughput: int
+    latency: int
+    behind_big: dict[str, int]
+    repeats_small: int
+    repeats_big: int
+    again: bool
 
 
 class ScalingServer(Server):
@@ -188,7 +199,7 @@ def _spread(targets: list[tuple[ScalingServer, str]], parts: list[list[dict]]) -
     count = len(targets)
     connected, go = threading.Barrier(count + 1), threading.Barrier(count + 1)
     client_ports: list[int] = [0] * count
-    statuses: collections.Counter = collections.Counter()
+    statuses: collections.Counter[Any] = collections.Counter()
     latencies: list[float] = []
     lock = threading.Lock()
 
@@ -196,7 +207,8 @@ def _spread(targets: list[tuple[ScalingServer, str]], parts: list[list[dict]]) -
         server, model_id = targets[index]
         connection = http.client.HTTPConnection("127.0.0.1", server.port, timeout=120)
         path, headers = f"/v1/models/{model_id}/scenes", {"Content-Type": "application/json"}
-        own_latencies, own_statuses = [], collections.Counter()
+        own_latencies: list[float] = []
+        own_statuses: collections.Counter[Any] = collections.Counter()
 
         def post(body: dict) -> None:
             start = time.perf_counter()
@@ -306,7 +318,7 @@ def catch_up_series(
     model_id: str,
     behind: int,
     data: dict,
-    sizes: dict,
+    sizes: ScalingSizes,
     backend: str,
 ) -> dict[str, Any]:
     on_a, on_b = Getter(a.port), Getter(b.port)
@@ -380,7 +392,7 @@ def _catch_up_figures(times: list[float], base_ms: float, scenes: int) -> dict[s
 
 
 def run_backend(
-    backend: str, url: str, folder: Path, data: dict, sizes: dict, pending: Future | None
+    backend: str, url: str, folder: Path, data: dict, sizes: ScalingSizes, pending: Future | None
 ) -> dict[str, Any]:
     """(a) on process A alone; (b) on a ``--workers 2`` server while A idles; (c) on A and a replica
     B, with C started beside them for the catch-up's full-load reference; then (a) again on A alone.
@@ -527,7 +539,7 @@ def main() -> dict:
     parser.add_argument("--quick", action="store_true", help="fewer scenes (a smoke run, not a measurement)")
     parser.add_argument("--backends", default="sqlite,postgresql", help="comma-separated: sqlite, postgresql")
     args = parser.parse_args(sys.argv[1:])
-    sizes = (
+    sizes: ScalingSizes = (
         {
             "throughput": 800,
             "latency": 2_000,
@@ -557,9 +569,12 @@ def main() -> dict:
             backend: f"sqlite:///{folder / 'bench.sqlite3'}" if backend == "sqlite" else _fresh_postgres()
             for backend in backends
         }
-        first = next((backend for backend in backends if urls[backend]), None)
+        reachable = {backend: url for backend, url in urls.items() if url is not None}
+        first = next(iter(reachable), None)
         # The first server starts while the training features are extracted (both take tens of seconds).
-        pending = starter.submit(lambda: _start([(urls[first], folder / f"{first}-a.log", 1)])[0]) if first else None
+        pending = (
+            starter.submit(lambda: _start([(reachable[first], folder / f"{first}-a.log", 1)])[0]) if first else None
+        )
         world = World.paper(0)
         started = time.perf_counter()
         recordings = world.recordings(world.train_objects, seed=0)  # an object's recording is independent of the others
@@ -577,13 +592,9 @@ def main() -> dict:
         pipeline = pipeline_ms(world, train, data["warmup"] + data["concepts"][:300], SERVING, len(data["warmup"]))
         results["pipeline_ms"] = round(pipeline, 3)
         print(f"in-process pipeline {pipeline:.2f} ms a scene (previous session 0.37 ms)", flush=True)
-        for backend in backends:
-            if urls[backend] is None:
-                continue
+        for backend, url in reachable.items():
             try:
-                results[backend] = run_backend(
-                    backend, urls[backend], folder, data, sizes, pending if backend == first else None
-                )
+                results[backend] = run_backend(backend, url, folder, data, sizes, pending if backend == first else None)
             except Exception as error:  # noqa: BLE001 - reported, and the other backend still runs
                 traceback.print_exc()
                 results[backend] = {"error": f"{type(error).__name__}: {error}"}

@@ -51,7 +51,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import httpx
 import numpy as np
@@ -230,7 +230,19 @@ class Server:
             self.process.wait()
 
 
-def _summary(latencies: list[float]) -> dict[str, float]:
+class LatencySummary(TypedDict):
+    """One series of request latencies, as the JSON result records it."""
+
+    scenes: int
+    median_ms: float
+    p90_ms: float
+    p99_ms: float
+    max_ms: float
+    scenes_per_second: float
+    median_ms_by_tenth: list[float]
+
+
+def _summary(latencies: list[float]) -> LatencySummary:
     ms = np.array(latencies) * 1000
     return {
         "scenes": len(ms),

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 
@@ -51,9 +51,9 @@ def paper_difficulty(name: str, paper: Mapping[str, Any] | None = None) -> Diffi
     return Difficulty.from_dict({"name": name, **presets[name]})
 
 
-def _is_count(value: object, minimum: int = 0) -> bool:
+def _is_count(value: object, minimum: int | np.integer = 0) -> TypeGuard[int | np.integer]:
     """An integer (not a bool) of at least ``minimum``."""
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= minimum
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and bool(value >= minimum)
 
 
 def _rng(seed: int | np.random.Generator, *stream: int) -> np.random.Generator:
@@ -314,7 +314,9 @@ class WorldConfig:
         counts: dict[str, dict[str, int]] = {}
         sizes: dict[str, int] = {}
         for index in range(n_contexts):
-            theme = themes[index] if index < len(themes) else {"context": f"context_{index + 1}", "nouns": []}
+            theme: Mapping[str, Any] = (
+                themes[index] if index < len(themes) else {"context": f"context_{index + 1}", "nouns": []}
+            )
             nouns = _theme_nouns(theme, nouns_per_context, index)
             tendency = {
                 pair: float(rng.choice([0.15, 0.5, 0.85], p=[0.35, 0.3, 0.35]))
@@ -372,10 +374,15 @@ def _theme_nouns(theme: Mapping[str, Any], wanted: int, index: int) -> list[dict
 
 def _count_range(value: int | tuple[int, int], field_name: str) -> tuple[int, int]:
     """An inclusive (low, high) range of counts >= 1, from one count or a pair."""
-    try:
-        low, high = (value, value) if _is_count(value) else value
-    except (TypeError, ValueError):
-        low = high = None
+    low: object
+    high: object
+    if isinstance(value, (int, np.integer)):
+        low = high = value  # a bool or a count below 1 too: refused below
+    else:
+        try:
+            low, high = value
+        except (TypeError, ValueError):
+            low = high = None
     if not (_is_count(low, 1) and _is_count(high, low)):
         raise InvalidInputError(
             field_name, f"must be an integer >= 1 or a (low, high) range with 1 <= low <= high, got {value!r}"
@@ -439,7 +446,7 @@ def make_objects(config: WorldConfig, seed: int | np.random.Generator = 0) -> tu
     return tuple(objects)
 
 
-def _largest_remainder(sizes: Mapping[str, int], total: int, rng: np.random.Generator) -> dict[str, int]:
+def _largest_remainder(sizes: Mapping[str, float], total: int, rng: np.random.Generator) -> dict[str, int]:
     """Split ``total`` over the keys in proportion to ``sizes`` (Hamilton's method, random tie order)."""
     grand = sum(sizes.values())
     exact = {key: total * size / grand for key, size in sizes.items()}

@@ -150,7 +150,10 @@ class DriverStatements:
     def __init__(self, session: Session) -> None:
         connection = session.connection()
         self.dialect = connection.dialect
-        self._driver = connection.connection.driver_connection
+        driver = connection.connection.driver_connection
+        # None only once the pool has invalidated the connection, which the session just checked out is not.
+        assert driver is not None
+        self._driver = driver
         self._qmark = self.dialect.paramstyle == "qmark"
 
     def execute(self, statement: str, parameters: Sequence[Any]) -> None:

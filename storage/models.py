@@ -15,7 +15,7 @@ rows not written since its version.
 from __future__ import annotations
 
 from datetime import UTC, datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from sqlalchemy import (
     JSON,
@@ -29,6 +29,7 @@ from sqlalchemy import (
     LargeBinary,
     MetaData,
     String,
+    Table,
     UniqueConstraint,
 )
 from sqlalchemy.dialects.postgresql import JSONB
@@ -84,7 +85,15 @@ class CompressedText(TypeDecorator[str]):
 
 class Base(DeclarativeBase):
     metadata = MetaData(naming_convention=NAMING_CONVENTION)
-    type_annotation_map = {dict[str, Any]: JSONType, list[Any]: JSONType, datetime: UtcDateTime}
+    if TYPE_CHECKING:
+        # Every class here is mapped to a declarative Table (DeclarativeBase types it as any FromClause),
+        # so ``Model.__table__.c`` and ``.create()`` type-check; declared as SQLAlchemy declares it.
+        __table__: ClassVar[Table]
+    type_annotation_map: ClassVar[dict[Any, Any]] = {
+        dict[str, Any]: JSONType,
+        list[Any]: JSONType,
+        datetime: UtcDateTime,
+    }
 
 
 def _model_fk() -> Any:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -114,9 +115,12 @@ def engine(database_url: str) -> Iterator[Engine]:
     engine.dispose()
 
 
-def make_settings(database_url: str, **overrides: object) -> Settings:
-    """Settings for a test: explicit values, so the developer's CONTEXTWEB_* variables never leak in."""
-    values: dict[str, object] = {
+def make_settings(database_url: str, **overrides: Any) -> Settings:
+    """Settings for a test: explicit values, so the developer's CONTEXTWEB_* variables never leak in.
+
+    ``overrides`` are any of Settings' fields, checked by its validation like the defaults here.
+    """
+    values: dict[str, Any] = {
         "database_url": database_url,
         "environment": "development",
         "write_key": None,

@@ -25,7 +25,20 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sqlalchemy import ColumnElement, Row, delete, func, literal_column, select, text, union_all, update
+from sqlalchemy import (
+    ColumnElement,
+    CursorResult,
+    Integer,
+    Result,
+    Row,
+    delete,
+    func,
+    literal_column,
+    select,
+    text,
+    union_all,
+    update,
+)
 from sqlalchemy.orm import Session
 
 from storage.database import DriverStatements
@@ -45,6 +58,9 @@ from storage.repositories.incremental_lda import (
     load_checkpoint,
     save_checkpoint,
 )
+
+#: A row of any width, read by column name (``row.total``).
+AnyRow = Row[*tuple[Any, ...]]
 
 
 @dataclass(frozen=True)
@@ -133,9 +149,11 @@ def repair_model(session: Session, model_id: str) -> list[str]:
     context_count = max(state.context_count, 1 if largest_context is None else largest_context + 1, 1)
     word_count = _id_range(session, Word.id, Word.model_id, model_id).count
     changes += _rewrite_counts(session, model_id, new_version, context_count, word_count)
-    moved_tokens = session.execute(
-        update(Token).where(Token.model_id == model_id, Token.version > state.version).values(version=new_version)
-    ).rowcount
+    moved_tokens = _rowcount(
+        session.execute(
+            update(Token).where(Token.model_id == model_id, Token.version > state.version).values(version=new_version)
+        )
+    )
     if moved_tokens:
         changes.append(f"token: {moved_tokens} rows carried a version above {state.version}, set to {new_version}")
     session.execute(
@@ -156,10 +174,16 @@ def repair_model(session: Session, model_id: str) -> list[str]:
     return changes
 
 
+def _rowcount(result: Result[*tuple[Any, ...]]) -> int:
+    """The rows an UPDATE, DELETE or INSERT matched: ``Session.execute`` types every result as a Result."""
+    assert isinstance(result, CursorResult)
+    return result.rowcount
+
+
 # The state row.
 
 
-def _state_row(session: Session, model_id: str, *, lock: bool = False) -> Row[Any] | None:
+def _state_row(session: Session, model_id: str, *, lock: bool = False) -> AnyRow | None:
     statement = select(
         IncrementalLdaState.scene_count,
         IncrementalLdaState.context_count,
@@ -170,7 +194,7 @@ def _state_row(session: Session, model_id: str, *, lock: bool = False) -> Row[An
 
 
 def _state_problems(
-    session: Session, model_id: str, state: Row[Any], scene_count: int, word_count: int, max_contexts: Any
+    session: Session, model_id: str, state: AnyRow, scene_count: int, word_count: int, max_contexts: Any
 ) -> list[Problem]:
     problems = []
     rng_problem = _rng_state_problem(state.state)
@@ -333,7 +357,7 @@ def _dense_id_problems(table: str, plural: str, ids: _IdRange) -> list[Problem]:
 
 def _first_and_total(
     session: Session, columns: Sequence[Any], *conditions: Any, order_by: Sequence[Any]
-) -> Row[Any] | None:
+) -> AnyRow | None:
     """The first row meeting ``conditions`` (in ``order_by``) with the number of such rows as its ``total``."""
     statement = select(*columns, func.count().over().label("total")).where(*conditions).order_by(*order_by).limit(1)
     return session.execute(statement).first()
@@ -392,7 +416,7 @@ def _token_problems(session: Session, model_id: str, word_count: int) -> list[Pr
     return problems
 
 
-def _orphan_token(session: Session, model_id: str) -> Row[Any] | None:
+def _orphan_token(session: Session, model_id: str) -> AnyRow | None:
     statement = (
         select(Token.id, Token.scene_id, func.count().over().label("total"))
         .outerjoin(Scene, (Scene.model_id == Token.model_id) & (Scene.id == Token.scene_id))
@@ -429,6 +453,7 @@ def _context_range_problems(session: Session, model_id: str, context_count: int,
     if beyond is None:
         return []
     largest = session.scalar(select(func.max(Token.context)).where(Token.model_id == model_id))
+    assert largest is not None  # ``beyond`` is a token of the model
     fits = not isinstance(max_contexts, int) or largest < max_contexts
     limit = "" if fits else f"; the largest, {largest}, is beyond the model's max_contexts {max_contexts}"
     return [
@@ -468,16 +493,18 @@ def _count_problems(session: Session, model_id: str) -> list[Problem]:
     ]
 
 
-def _first_count_difference(session: Session, model_id: str) -> Row[Any] | None:
+def _first_count_difference(session: Session, model_id: str) -> AnyRow | None:
     """The first (context, word) whose stored count differs from its token count, with the number of such."""
     stored = select(
         ContextWordCount.context,
         ContextWordCount.word_id,
         ContextWordCount.count.label("stored"),
-        literal_column("0").label("assigned"),
+        literal_column("0", Integer).label("assigned"),
     ).where(ContextWordCount.model_id == model_id)
     assigned = (
-        select(Token.context, Token.word_id, literal_column("0").label("stored"), func.count().label("assigned"))
+        select(
+            Token.context, Token.word_id, literal_column("0", Integer).label("stored"), func.count().label("assigned")
+        )
         .where(Token.model_id == model_id)
         .group_by(Token.context, Token.word_id)
     )
@@ -563,7 +590,7 @@ def _rewrite_counts(session: Session, model_id: str, version: int, context_count
     changes = []
     difference = _first_count_difference(session, model_id)
     outside = _count_row_outside(context_count, word_count)
-    deleted = session.execute(delete(ContextWordCount).where(ContextWordCount.model_id == model_id, outside)).rowcount
+    deleted = _rowcount(session.execute(delete(ContextWordCount).where(ContextWordCount.model_id == model_id, outside)))
     if deleted:
         changes.append(
             f"context_word_count: deleted {_count(deleted, 'row')} naming a context or word that does not exist "
@@ -572,7 +599,7 @@ def _rewrite_counts(session: Session, model_id: str, version: int, context_count
     session.execute(
         update(ContextWordCount).where(ContextWordCount.model_id == model_id).values(count=0, version=version)
     )
-    written = session.execute(_UPSERT_COUNTS_FROM_TOKENS, {"model_id": model_id, "version": version}).rowcount
+    written = _rowcount(session.execute(_UPSERT_COUNTS_FROM_TOKENS, {"model_id": model_id, "version": version}))
     rewritten = f"context_word_count: rewrote {_count(written, 'entry')} from the token rows"
     if difference is not None:
         changes.append(

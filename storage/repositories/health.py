@@ -19,6 +19,4 @@ def probe_write(session: Session, process_id: str) -> None:
     driver.execute(_UPSERT_PROBE, (process_id, driver.bind(StorageProbe.__table__.c.probed_at)(utc_now())))
 
 
-_UPSERT_PROBE = (
-    "INSERT INTO storage_probe (id, probed_at) VALUES (?, ?) ON CONFLICT (id) DO UPDATE SET probed_at = excluded.probed_at"
-)
+_UPSERT_PROBE = "INSERT INTO storage_probe (id, probed_at) VALUES (?, ?) ON CONFLICT (id) DO UPDATE SET probed_at = excluded.probed_at"

@@ -439,9 +439,7 @@ def load_changes(session: Session, model_id: str, *, since_version: int, word_co
 # SQLAlchemy's Row objects (the measurement: docs/benchmarks.md).
 _SELECT_TOKENS = "SELECT scene_id, word_id, context FROM token WHERE model_id = ? ORDER BY id"
 _SELECT_COUNTS = "SELECT context, word_id, count FROM context_word_count WHERE model_id = ?"
-_SELECT_TOKENS_SINCE = (
-    "SELECT id, scene_id, word_id, context FROM token WHERE model_id = ? AND version > ? ORDER BY id"
-)
+_SELECT_TOKENS_SINCE = "SELECT id, scene_id, word_id, context FROM token WHERE model_id = ? AND version > ? ORDER BY id"
 _SELECT_COUNTS_SINCE = "SELECT context, word_id, count FROM context_word_count WHERE model_id = ? AND version > ?"
 
 

@@ -505,18 +505,17 @@ class ConceptWeb:
     ) -> tuple[np.ndarray, np.ndarray | None]:
         n_concepts, n_verbs = len(self.vocabulary.concepts), len(self.vocabulary.verbs)
         if (
-            batched
-            and type(perception) is np.ndarray
+            type(perception) is np.ndarray
             and perception.dtype == np.float64
-            and perception.ndim == 2
-            and perception.shape[1] == n_concepts
+            and perception.ndim == (2 if batched else 1)
+            and perception.shape[-1] == n_concepts
             and perception.size
             and 0.0 <= perception.min()
             and perception.max() <= 1.0
         ):
             # The common case in two reductions (NaN fails both comparisons); anything else is
             # checked in full below, which names the problem.
-            values = perception
+            values = perception if batched else perception[None]
         elif batched:
             values = _checks.probabilities(perception, "perceptions", ("n_objects", n_concepts))
         else:

@@ -137,9 +137,9 @@ def propagate(
             n_source = cardinalities[source]
             p0, p1 = product[source, 0], product[source, min(1, n_source - 1)]
             for k in range(np.uint64(incoming_start[source]), np.uint64(incoming_start[source + 1])):
-                back = np.uint64(incoming[k])  # the message entering source, the reverse of d
-                d = back ^ _1
-                n_target, start = cardinalities[np.uint64(targets[d])], np.uint64(factor_start[d])
+                back = np.uint64(incoming[k])  # the message entering source, the reverse of the one it sends
+                sent = back ^ _1
+                n_target, start = cardinalities[np.uint64(targets[sent])], np.uint64(factor_start[sent])
                 if n_source == 2 and n_target == 2:
                     # Binary edge: the cavity (product without the reverse message) up to scale,
                     # p0 / m0 : p1 / m1 = p0 * m1 : p1 * m0, needs no division.
@@ -152,11 +152,11 @@ def propagate(
                         v0 = c0 * factors[start] + c1 * factors[start + _2]
                         v1 = c0 * factors[start + _1] + c1 * factors[start + _3]
                     scale = (1.0 - damping) / (v0 + v1)
-                    m0 = scale * v0 + damping * messages[d, 0]
-                    m1 = scale * v1 + damping * messages[d, 1]
-                    delta = max(delta, abs(m0 - messages[d, 0]), abs(m1 - messages[d, 1]))
-                    updated[d, 0] = m0
-                    updated[d, 1] = m1
+                    m0 = scale * v0 + damping * messages[sent, 0]
+                    m1 = scale * v1 + damping * messages[sent, 1]
+                    delta = max(delta, abs(m0 - messages[sent, 0]), abs(m1 - messages[sent, 1]))
+                    updated[sent, 0] = m0
+                    updated[sent, 1] = m1
                     continue
                 for a in range(n_source):
                     cavity[a] = product[source, a] / messages[back, a]
@@ -173,10 +173,10 @@ def propagate(
                     total += value
                 scale = (1.0 - damping) / total
                 for b in range(n_target):
-                    fresh = scale * computed[b] + damping * messages[d, b]
-                    change = abs(fresh - messages[d, b])
+                    fresh = scale * computed[b] + damping * messages[sent, b]
+                    change = abs(fresh - messages[sent, b])
                     delta = max(delta, change)
-                    updated[d, b] = fresh
+                    updated[sent, b] = fresh
         messages, updated = updated, messages
         converged = delta < tolerance
     if iterations % 2 == 1:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from core.concept_web import ConceptWeb
-from core.context import IncrementalLDA, feedback
+from core.context import IncrementalLDA, lda
 from core.context.feedback import _FoldIn, _words, context_concepts, contextual_feedback
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary
@@ -127,9 +127,9 @@ def test_the_options_must_be_bools(world, web, context_model, option: str, value
 @pytest.mark.parametrize("small_memo", [False, True])
 def test_the_fold_in_is_infer_scene_of_the_documents_words(world, context_model, monkeypatch, small_memo) -> None:
     if small_memo:  # draws longer than the memo keeps, and more seeds than it keeps
-        monkeypatch.setattr(feedback, "_DRAWN", {})
-        monkeypatch.setattr(feedback, "_DRAWN_SIZE", 700)
-        monkeypatch.setattr(feedback, "_DRAWN_SEEDS", 2)
+        monkeypatch.setattr(lda, "_DRAWN", {})
+        monkeypatch.setattr(lda, "_DRAWN_SIZE", 700)
+        monkeypatch.setattr(lda, "_DRAWN_SEEDS", 2)
     vocabulary = world.vocabulary
     rng = np.random.default_rng(5)
     # Long and short documents in turn: the memoised random numbers are prefixes of one draw per seed.

@@ -48,6 +48,15 @@ DEFAULT_PROBABILITY_FLOOR = 1e-3
 _STATE_KEYS = ("concepts", "cooccurrence", "n_objects", "beta", "pseudo_count", "probability_floor")
 
 
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.flags.writeable = False
+    return array
+
+
+#: The kernel's per-pass flags (``runs``, ``cold``), made once rather than on every call.
+_PASS_FLAGS = {(a, b): _read_only(np.array([a, b])) for a in (False, True) for b in (False, True)}
+
+
 @dataclass(frozen=True)
 class WebInference:
     """The settled concept web of one object.
@@ -458,11 +467,12 @@ class ConceptWeb:
         dampings, tolerance, counts = _pass_settings(damping, tolerance, max_iterations, sum_product, max_product)
         n_objects, n_concepts = perceptions.shape
         shape = (n_objects, *self._uniform.shape)
+        # A cold pass's messages, padding included, are written by the kernel before they are read.
         if not marginals:
             sum_messages = np.empty((n_objects, 0, 0))
         else:
-            sum_messages = np.zeros(shape) if start is None else start
-        max_messages = np.zeros(shape) if max_start is None else max_start
+            sum_messages = np.empty(shape) if start is None else start
+        max_messages = np.empty(shape) if max_start is None else max_start
         probabilities = np.empty((n_objects, n_concepts))
         map_configuration = np.empty((n_objects, n_concepts), dtype=np.bool_)
         iterations = np.empty((n_objects, 2), dtype=np.int64)
@@ -475,8 +485,8 @@ class ConceptWeb:
             self._kernel_layout,
             self._clip,
             self._kernel_graph,
-            np.array([marginals, True]),
-            np.array([start is None, max_start is None]),
+            _PASS_FLAGS[marginals, True],
+            _PASS_FLAGS[start is None, max_start is None],
             dampings,
             tolerance,
             counts,
@@ -505,18 +515,17 @@ class ConceptWeb:
     ) -> tuple[np.ndarray, np.ndarray | None]:
         n_concepts, n_verbs = len(self.vocabulary.concepts), len(self.vocabulary.verbs)
         if (
-            batched
-            and type(perception) is np.ndarray
+            type(perception) is np.ndarray
             and perception.dtype == np.float64
-            and perception.ndim == 2
-            and perception.shape[1] == n_concepts
+            and perception.ndim == (2 if batched else 1)
+            and perception.shape[-1] == n_concepts
             and perception.size
             and 0.0 <= perception.min()
             and perception.max() <= 1.0
         ):
             # The common case in two reductions (NaN fails both comparisons); anything else is
             # checked in full below, which names the problem.
-            values = perception
+            values = perception if batched else perception[None]
         elif batched:
             values = _checks.probabilities(perception, "perceptions", ("n_objects", n_concepts))
         else:

@@ -70,7 +70,6 @@ from __future__ import annotations
 
 import functools
 import itertools
-import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -80,6 +79,7 @@ import numpy as np
 from core.concept_web import ConceptWeb, WebInference
 from core.concept_web.active import active_concepts, carries_evidence
 from core.context.incremental import IncrementalLDA
+from core.context.lda import SeededUniforms
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary
 
@@ -364,10 +364,10 @@ class _FoldIn:
     """θ of a scene document given as a (n_objects, n_concepts) mask: exactly
     ``context_model.infer_scene(_words(document, vocabulary), seed=seed)``, with the words'
     model ids read off the layout instead of spelt out and looked up one by one, and the
-    fold-in's random numbers from :class:`_Uniforms`."""
+    fold-in's random numbers from :class:`SeededUniforms` (as ``infer_scene`` draws them)."""
 
     def __init__(self, context_model: IncrementalLDA, vocabulary: Vocabulary, seed: int) -> None:
-        self._model, self._uniforms = context_model, _Uniforms(seed)
+        self._model, self._uniforms = context_model, SeededUniforms(seed)
         self._layout = _layout(vocabulary, context_model.vocabulary)
         self._n_concepts = len(vocabulary.concepts)
 
@@ -378,41 +378,7 @@ class _FoldIn:
         if ids.shape[0] == 0:
             return np.full(state.n_contexts, 1.0 / state.n_contexts)
         settings = self._model.hyperparameters
-        return state.fold_in(ids, self._uniforms, settings.inference_sweeps, settings.inference_burn_in)  # type: ignore[arg-type]
-
-
-class _Uniforms:
-    """What ``np.random.default_rng(seed)`` gives a fold-in (its one ``random(size)`` call), from a
-    memoised draw per seed: a generator's doubles come one after another, so a shorter draw
-    is a prefix of a longer one (tested against ``infer_scene``). Creating and seeding a
-    generator costs about as much as folding a scene in."""
-
-    def __init__(self, seed: int) -> None:
-        self._seed = seed
-
-    def random(self, size: int) -> np.ndarray:
-        if size > _DRAWN_SIZE:
-            return np.random.default_rng(self._seed).random(size)
-        drawn = _DRAWN.get(self._seed)
-        if drawn is None or len(drawn) < size:
-            with _DRAWN_LOCK:
-                drawn = _DRAWN.get(self._seed)
-                if drawn is None or len(drawn) < size:
-                    longer = max(size, min(2 * (0 if drawn is None else len(drawn)), _DRAWN_SIZE))
-                    drawn = np.random.default_rng(self._seed).random(longer)
-                    drawn.flags.writeable = False
-                    if len(_DRAWN) >= _DRAWN_SEEDS:
-                        del _DRAWN[next(iter(_DRAWN))]
-                    _DRAWN[self._seed] = drawn
-        return drawn[:size]
-
-
-#: Memoised draws of :class:`_Uniforms`, by seed: at most ``_DRAWN_SEEDS`` seeds (the first ones are
-#: dropped) of at most ``_DRAWN_SIZE`` numbers (30 sweeps of 2,000 tokens; longer draws are not kept): 8 MB.
-_DRAWN: dict[int, np.ndarray] = {}
-_DRAWN_SEEDS = 16
-_DRAWN_SIZE = 60_000
-_DRAWN_LOCK = threading.Lock()
+        return state.fold_in(ids, self._uniforms, settings.inference_sweeps, settings.inference_burn_in)
 
 
 def _settle(

@@ -73,8 +73,8 @@ class SeededUniforms:
     generator's doubles come one after another, so a shorter draw is a prefix of a longer one.
     Creating and seeding a generator, and drawing, cost about as much as folding a 5-object scene
     in (≈ 7 µs each), and the service folds in with one seed per model
-    (:meth:`core.context.IncrementalLDA.infer_scene`; ``feedback._Uniforms`` does the same for
-    Eq. 6's fold-ins and can delegate here)."""
+    (:meth:`core.context.IncrementalLDA.infer_scene`, and Eq. 6's fold-ins in
+    ``core.context.feedback``)."""
 
     def __init__(self, seed: int) -> None:
         self._seed = seed

@@ -11,7 +11,7 @@ from app.registry import ModelRegistry, ModelRuntime, jsonable
 from app.schemas.models import ModelCreate, ModelRead, VocabularySchema
 from app.services.perception import Perception
 from app.stream import CLOSE_NORMAL, StreamHub
-from core.context.incremental import Hyperparameters, IncrementalLDA
+from core.context import Hyperparameters, IncrementalLDA
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary, paper_vocabulary
 from storage.repositories import incremental_lda as lda_repository
@@ -22,12 +22,12 @@ from storage.unit_of_work import after_commit
 def create_model(session: Session, registry: ModelRegistry, body: ModelCreate) -> ModelRuntime:
     """A new model with K = 1 and the vocabulary's concepts as its first words; registered on commit."""
     vocabulary = _vocabulary(body.vocabulary)
-    hyperparameters = body.hyperparameters.model_dump()
     try:
-        Hyperparameters(**hyperparameters)
+        settings = Hyperparameters.from_dict(body.hyperparameters.model_dump())
     except InvalidInputError as error:
         raise InvalidInput(f"hyperparameters.{error.field}", error.problem) from None
-    incremental_lda = IncrementalLDA(vocabulary.concepts, seed=body.seed, **hyperparameters)
+    hyperparameters = settings.to_dict()
+    incremental_lda = IncrementalLDA(vocabulary.concepts, seed=body.seed, hyperparameters=settings)
     row = model_repository.add_model(
         session,
         model_id=uuid.uuid4().hex,

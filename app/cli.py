@@ -25,7 +25,9 @@ def _build_experiment(parser: argparse.ArgumentParser) -> None:
     for name, module_path in EXPERIMENTS.items():
         module = importlib.import_module(module_path)
         experiment = names.add_parser(name, help=(module.__doc__ or name).strip().splitlines()[0])
-        experiment.add_argument("--out", type=Path, default=Path("reports") / name, help="folder for the CSV and PNG files")
+        experiment.add_argument(
+            "--out", type=Path, default=Path("reports") / name, help="folder for the CSV and PNG files"
+        )
         experiment.add_argument("--json", action="store_true", help="print the JSON summary on stdout")
         experiment.add_argument("--quick", action="store_true", help="a small size, for tests")
         experiment.add_argument("--seed", type=int, default=0, help="seed of every random choice")
@@ -108,9 +110,13 @@ def _build_report(parser: argparse.ArgumentParser) -> None:
 
 def _build_prototypes(parser: argparse.ArgumentParser) -> None:
     actions = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
-    show = actions.add_parser("show", help="fit the prototypes on the paper world's training objects and print Table VIII")
+    show = actions.add_parser(
+        "show", help="fit the prototypes on the paper world's training objects and print Table VIII"
+    )
     show.add_argument("--seed", type=int, default=0, help="seed of the world, its recordings and the clustering")
-    show.add_argument("--method", choices=["rgng", "kmeans"], default="rgng", help="clustering in the mean-variance plane")
+    show.add_argument(
+        "--method", choices=["rgng", "kmeans"], default="rgng", help="clustering in the mean-variance plane"
+    )
     show.set_defaults(handler=_show_prototypes)
 
 

@@ -79,7 +79,9 @@ class ContextNotFound(ContextwebError):
     status_code = 404
 
     def __init__(self, model_id: str, context: int, context_count: int) -> None:
-        super().__init__(f"model {model_id!r} has {context_count} context(s), no context {context}", field="path.context")
+        super().__init__(
+            f"model {model_id!r} has {context_count} context(s), no context {context}", field="path.context"
+        )
 
 
 class ModelNotFitted(ContextwebError):

@@ -251,8 +251,9 @@ def catch_up(session: Session, model: ModelRuntime) -> bool:
     if changes.version == model.version:
         return True
     fitted_at, training_count = session.execute(
-        select(Model.fitted_at, select(func.count()).where(TrainingObject.model_id == model.id).scalar_subquery())
-        .where(Model.id == model.id)
+        select(
+            Model.fitted_at, select(func.count()).where(TrainingObject.model_id == model.id).scalar_subquery()
+        ).where(Model.id == model.id)
     ).one()
     if fitted_at != model.fitted_at:
         row = model_repository.get_model(session, model.id)
@@ -283,9 +284,7 @@ class ModelRegistry:
     that names them (:meth:`resolve`) or lists them (:meth:`synchronise`).
     """
 
-    def __init__(
-        self, read_sessions: sessionmaker[Session], vocabulary_limits: VocabularyLimits | None = None
-    ) -> None:
+    def __init__(self, read_sessions: sessionmaker[Session], vocabulary_limits: VocabularyLimits | None = None) -> None:
         self.vocabulary_limits = vocabulary_limits or VocabularyLimits.defaults()
         self._models: dict[str, ModelRuntime] = {}
         self._lock = threading.Lock()

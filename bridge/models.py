@@ -72,57 +72,57 @@ class Vocabulary(RequestModel):
 class Priors(RequestModel):
     """α and ξ, the symmetric Dirichlet priors of Eq. 5; None: the service's default (0.1)."""
 
-    alpha: float | None = Field(None, gt=0)
-    xi: float | None = Field(None, gt=0)
+    alpha: float | None = Field(default=None, gt=0)
+    xi: float | None = Field(default=None, gt=0)
 
 
 class SamplerSettings(RequestModel):
     """Gibbs sweeps of each step (docs/api.md, "Hyperparameters"); None: the service's default."""
 
-    sweeps: int | None = Field(None, ge=1)
-    scene_sweeps: int | None = Field(None, ge=1)
-    rejuvenation_tokens: int | None = Field(None, ge=0)
-    inference_sweeps: int | None = Field(None, ge=1)
-    inference_burn_in: int | None = Field(None, ge=0)
+    sweeps: int | None = Field(default=None, ge=1)
+    scene_sweeps: int | None = Field(default=None, ge=1)
+    rejuvenation_tokens: int | None = Field(default=None, ge=0)
+    inference_sweeps: int | None = Field(default=None, ge=1)
+    inference_burn_in: int | None = Field(default=None, ge=0)
 
 
 class _KRule(RequestModel):
-    max_contexts: int | None = Field(None, ge=1)
-    birth_window: int | None = Field(None, ge=1)
-    birth_check_interval: int | None = Field(None, ge=1)
-    novelty_window: int | None = Field(None, ge=1)
-    scene_prior_strength: float | None = Field(None, gt=0)
+    max_contexts: int | None = Field(default=None, ge=1)
+    birth_window: int | None = Field(default=None, ge=1)
+    birth_check_interval: int | None = Field(default=None, ge=1)
+    novelty_window: int | None = Field(default=None, ge=1)
+    scene_prior_strength: float | None = Field(default=None, gt=0)
 
 
 class ScenesRule(_KRule):
     """The default K rule, scene-partition evidence; None: the service's default."""
 
     name: Literal["scenes"] = "scenes"
-    partition_scans: int | None = Field(None, ge=1)
-    online_partition_scans: int | None = Field(None, ge=1)
-    partition_random_starts: int | None = Field(None, ge=0)
-    birth_margin: float | None = Field(None, ge=0)
-    online_birth_margin: float | None = Field(None, ge=0)
-    birth_proposals: int | None = Field(None, ge=1)
-    delta: float | None = Field(None, ge=0, le=1)
-    split_scans: int | None = Field(None, ge=0)
+    partition_scans: int | None = Field(default=None, ge=1)
+    online_partition_scans: int | None = Field(default=None, ge=1)
+    partition_random_starts: int | None = Field(default=None, ge=0)
+    birth_margin: float | None = Field(default=None, ge=0)
+    online_birth_margin: float | None = Field(default=None, ge=0)
+    birth_proposals: int | None = Field(default=None, ge=1)
+    delta: float | None = Field(default=None, ge=0, le=1)
+    split_scans: int | None = Field(default=None, ge=0)
 
 
 class PaperRule(_KRule):
     """The paper's Algorithm 2 (C_low ≠ ∅ under τ); None: the service's default."""
 
     name: Literal["paper"]
-    tau: float | None = Field(None, gt=0, lt=1)
-    delta: float | None = Field(None, ge=0, le=1)
+    tau: float | None = Field(default=None, gt=0, lt=1)
+    delta: float | None = Field(default=None, ge=0, le=1)
 
 
 class Hyperparameters(RequestModel):
     """Incremental-LDA's settings, nested by concern as the service takes them (docs/api.md);
     what is left out takes the service's default."""
 
-    priors: Priors = Field(default_factory=Priors)
-    sampler: SamplerSettings = Field(default_factory=SamplerSettings)
-    k_rule: Annotated[ScenesRule | PaperRule, Field(discriminator="name")] = Field(default_factory=ScenesRule)
+    priors: Priors = Field(default_factory=lambda: Priors())
+    sampler: SamplerSettings = Field(default_factory=lambda: SamplerSettings())
+    k_rule: Annotated[ScenesRule | PaperRule, Field(discriminator="name")] = Field(default_factory=lambda: ScenesRule())
 
 
 class ModelCreate(RequestModel):
@@ -131,7 +131,7 @@ class ModelCreate(RequestModel):
     name: str = Field(min_length=1, max_length=200)
     seed: int = Field(0, ge=0)
     sigma: float | None = Field(None, ge=0, le=1, description="σ of Eq. 6; the service's default (0.5) when None.")
-    hyperparameters: Hyperparameters = Field(default_factory=Hyperparameters)
+    hyperparameters: Hyperparameters = Field(default_factory=lambda: Hyperparameters())
     vocabulary: Vocabulary | None = None
 
 

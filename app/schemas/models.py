@@ -23,11 +23,11 @@ MAX_CONTEXTS_BOUND, MAX_REJUVENATION_TOKENS = 100, 100_000
 #: every posterior is uniform: a larger value means nothing more. Below 1e-6 the products of
 #: Eq. 5 (n + α)(n + ξ) for unseen words fall towards float64's underflow and the sampler's
 #: probabilities lose their precision; the paper uses 0.1. ``alpha: 1e308`` made every posterior 0.
-DIRICHLET_BOUNDS: dict[str, Any] = {"ge": 1e-6, "le": 1e3, "allow_inf_nan": False}
+Concentration = Annotated[float, Field(ge=1e-6, le=1e3, allow_inf_nan=False)]
 #: A margin above 10,000 nats can never be met (growth simply stops, which ``max_contexts`` says more plainly).
-MARGIN_BOUNDS: dict[str, Any] = {"ge": 0.0, "le": 1e4, "allow_inf_nan": False}
-#: τ and δ are probabilities.
-DELTA_BOUNDS: dict[str, Any] = {"ge": 0.0, "le": 1.0, "allow_inf_nan": False}
+Margin = Annotated[float, Field(ge=0.0, le=1e4, allow_inf_nan=False)]
+#: δ is a probability.
+Delta = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
 
 
 def _count(default: int, description: str, *, lowest: int = 1, highest: int = MAX_INTEGER_SETTING) -> Any:
@@ -37,8 +37,8 @@ def _count(default: int, description: str, *, lowest: int = 1, highest: int = MA
 class Priors(RequestSchema):
     """The symmetric Dirichlet priors of Eq. 5."""
 
-    alpha: float = Field(0.1, **DIRICHLET_BOUNDS, description="α: prior on a scene's contexts (Eq. 5; §V-B uses 0.1).")
-    xi: float = Field(0.1, **DIRICHLET_BOUNDS, description="ξ: prior on a context's concepts (Eq. 5; §V-B uses 0.1).")
+    alpha: Concentration = Field(default=0.1, description="α: prior on a scene's contexts (Eq. 5; §V-B uses 0.1).")
+    xi: Concentration = Field(default=0.1, description="ξ: prior on a context's concepts (Eq. 5; §V-B uses 0.1).")
 
 
 class SamplerSettings(RequestSchema):
@@ -70,9 +70,8 @@ class _KRuleBase(RequestSchema):
         "Online: a scene that a fresh context explains better than every context held before the last "
         "this-many scenes triggers a growth check on the last this-many scenes, itself included.",
     )
-    scene_prior_strength: float = Field(
-        1.0,
-        **DIRICHLET_BOUNDS,
+    scene_prior_strength: Concentration = Field(
+        default=1.0,
         description="Pseudo-counts per concept of the corpus-centred Dirichlet on a context's concepts, "
         "with which the novelty trigger (and the scenes rule's evidence) scores a scene's blocks.",
     )
@@ -88,21 +87,19 @@ class ScenesRule(_KRuleBase):
     partition_random_starts: int = _count(
         4, "In a batch fit: searches from random partitions, besides those from the model's own.", lowest=0
     )
-    birth_margin: float = Field(
-        0.0,
-        **MARGIN_BOUNDS,
+    birth_margin: Margin = Field(
+        default=0.0,
         description="A batch fit keeps K + 1 if its evidence exceeds K's by more than this many nats.",
     )
-    online_birth_margin: float = Field(
-        3.0,
-        **MARGIN_BOUNDS,
+    online_birth_margin: Margin = Field(
+        default=3.0,
         description="The same margin online (3 nats: a Bayes factor of 20, 'strong' on Kass & Raftery's scale).",
     )
     birth_proposals: int = _count(
         2, "Searches for K + 1 also start with each of this many worst-explained scenes in the new context."
     )
-    delta: float = Field(
-        0.05, **DELTA_BOUNDS, description="δ of a forced start: probability that a confident token moves (Algorithm 3)."
+    delta: Delta = Field(
+        default=0.05, description="δ of a forced start: probability that a confident token moves (Algorithm 3)."
     )
     split_scans: int = _count(3, "Scene-level split passes after a forced start.", lowest=0)
 
@@ -112,15 +109,14 @@ class PaperRule(_KRuleBase):
 
     name: Literal["paper"]
     tau: float = Field(
-        PAPER_TAU,
+        default=PAPER_TAU,
         gt=0.0,
         lt=1.0,
         allow_inf_nan=False,
         description="τ: a concept is in C_low when its confidence max_χ φ_χc is below τ (docs/context.md has the τ scan).",
     )
-    delta: float = Field(
-        0.05,
-        **DELTA_BOUNDS,
+    delta: Delta = Field(
+        default=0.05,
         description="δ: probability that a confident token moves to the new context (Algorithm 3).",
     )
 
@@ -155,9 +151,11 @@ class Hyperparameters(RequestSchema):
         json_schema_extra={"examples": [{"priors": {"alpha": 0.1}, "k_rule": {"name": "scenes"}}]}
     )
 
-    priors: Priors = Field(default_factory=Priors)
-    sampler: SamplerSettings = Field(default_factory=SamplerSettings)
-    k_rule: KRuleSettings = Field(default_factory=ScenesRule, description="The rule for K and its own settings.")
+    priors: Priors = Field(default_factory=lambda: Priors())
+    sampler: SamplerSettings = Field(default_factory=lambda: SamplerSettings())
+    k_rule: KRuleSettings = Field(
+        default_factory=lambda: ScenesRule(), description="The rule for K and its own settings."
+    )
 
     @model_validator(mode="before")
     @classmethod
@@ -192,7 +190,7 @@ class ModelCreate(RequestSchema):
         allow_inf_nan=False,
         description="σ of Eq. 6: weight of the concept web against the context (1 = web only).",
     )
-    hyperparameters: Hyperparameters = Field(default_factory=Hyperparameters)
+    hyperparameters: Hyperparameters = Field(default_factory=lambda: Hyperparameters())
     vocabulary: VocabularySchema | None = Field(None, description="Default: the paper's 29 concepts.")
 
 

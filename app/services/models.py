@@ -8,6 +8,7 @@ from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput
 from app.registry import ModelRegistry, ModelRuntime, jsonable
+from app.schemas.models import Hyperparameters as HyperparametersSchema
 from app.schemas.models import ModelCreate, ModelRead, VocabularySchema
 from app.services.perception import Perception
 from app.stream import CLOSE_NORMAL, StreamHub
@@ -86,7 +87,7 @@ def model_read(model: ModelRuntime) -> ModelRead:
         name=model.name,
         seed=model.seed,
         sigma=model.sigma,
-        hyperparameters=model.hyperparameters,
+        hyperparameters=HyperparametersSchema.model_validate(model.hyperparameters),
         vocabulary=VocabularySchema.model_validate(model.vocabulary.to_dict()),
         context_count=summary.context_count,
         vocabulary_size=summary.vocabulary_size,

@@ -8,8 +8,16 @@ from functools import cache
 import numpy as np
 import pytest
 
-from core.context import ContextModelState, IncrementalLDA, SceneUpdate
+from core.context import (
+    ContextModelState,
+    Hyperparameters,
+    IncrementalLDA,
+    PaperSettings,
+    SamplerSettings,
+    SceneUpdate,
+)
 from core.errors import InvalidInputError
+from experiments.baselines.likelihood_rule import likelihood_model
 from sim.world import WorldConfig, generate_scenes
 
 # Online tests use a small window so that growth checks stay cheap.
@@ -251,3 +259,27 @@ def test_infer_scene_draws_what_a_fresh_generator_of_its_seed_draws() -> None:
                 model._ids(words), np.random.default_rng(seed), h.inference_sweeps, h.inference_burn_in
             )
             assert np.array_equal(model.infer_scene(words, seed=seed), expected)
+
+
+def test_flat_settings_and_nested_hyperparameters_make_the_same_model() -> None:
+    """The flat keywords are a short form of the nested settings: same seed, same chain."""
+    scenes = _paper_scenes(30, 4)
+    flat = IncrementalLDA(seed=3, k_selection="paper", tau=0.05, sweeps=20).fit(scenes)
+    nested = IncrementalLDA(
+        seed=3,
+        hyperparameters=Hyperparameters(sampler=SamplerSettings(sweeps=20), k_rule=PaperSettings(tau=0.05)),
+    ).fit(scenes)
+    assert flat.hyperparameters == nested.hyperparameters
+    assert np.array_equal(flat.lda_state.assignments, nested.lda_state.assignments)
+    restored = IncrementalLDA.from_state(flat.to_state())
+    assert restored.hyperparameters == flat.hyperparameters and restored.hyperparameters.k_rule.name == "paper"
+    with pytest.raises(InvalidInputError, match="hyperparameters or flat settings"):
+        IncrementalLDA(hyperparameters=Hyperparameters(), sweeps=3)
+
+
+def test_the_likelihood_baseline_lives_in_the_experiments_and_is_not_restored_by_the_core() -> None:
+    model = likelihood_model(seed=0, sweeps=20, likelihood_samples=3).fit(_paper_scenes(20, 0))
+    assert model.hyperparameters.k_rule.name == "likelihood" and model.n_contexts >= 1
+    model.check_invariants()
+    with pytest.raises(InvalidInputError, match="experiments/baselines"):
+        IncrementalLDA.from_state(model.to_state())

@@ -85,8 +85,10 @@ def stopping_k(scenes: list[list[str]], seed: int, rule: str, tau: float | None)
     experiments' baseline, :mod:`experiments.baselines.likelihood_rule`)."""
     if rule == "likelihood":
         return likelihood_model(seed=seed).fit(scenes).n_contexts
-    options = {} if tau is None or rule != "paper" else {"tau": tau}
-    return IncrementalLDA(seed=seed, k_selection=rule, **options).fit(scenes).n_contexts
+    options: dict[str, Any] = {"k_selection": rule}
+    if tau is not None and rule == "paper":
+        options["tau"] = tau
+    return IncrementalLDA(seed=seed, **options).fit(scenes).n_contexts
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:

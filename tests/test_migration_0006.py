@@ -10,7 +10,7 @@ import sqlalchemy as sa
 from sqlalchemy import Engine
 
 from alembic import command
-from core.context import Hyperparameters
+from core.context import Hyperparameters, ScenesSettings
 from core.context.hyperparameters import nest_flat_settings
 from core.errors import InvalidInputError
 from storage.migrations import alembic_config, upgrade_to_head
@@ -98,7 +98,7 @@ def test_a_likelihood_model_continues_under_the_scenes_rule(flat_database: Engin
     upgrade_to_head(flat_database)
     nested, _ = _stored(flat_database, with_version=True)["likelihood"]
     settings = Hyperparameters.from_dict(nested)
-    assert settings.k_rule.name == "scenes" and settings.k_rule.split_scans == 2
+    assert isinstance(settings.k_rule, ScenesSettings) and settings.k_rule.split_scans == 2
     assert "growth_z" not in nested["k_rule"] and settings.sampler.sweeps == 12
 
 

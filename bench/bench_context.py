@@ -175,7 +175,7 @@ def detection(calls: int) -> dict[str, float]:
         reference.add_doc(scene)
     reference.optim_interval = 0
     reference.train(200, workers=1)
-    iterations = model.hyperparameters.inference_sweeps
+    iterations = model.hyperparameters.sampler.inference_sweeps
     documents = [reference.make_doc(scene) for scene in scenes]
     tomotopy = median_us(
         lambda i: reference.infer(documents[i % len(documents)], iterations=iterations, workers=1), calls

@@ -130,7 +130,7 @@ def steady_run(scenario: str, seed: int, n_scenes: int = STEADY_SCENES) -> dict[
     for index, scene in enumerate(scenes):
         seen.add(scene.object_contexts[0])
         update = model.learn_scene(scene.tokens())
-        late_checks += update.growth_checked and index >= model.hyperparameters.birth_check_interval
+        late_checks += update.growth_checked and index >= model.hyperparameters.k_rule.birth_check_interval
         max_excess = max(max_excess, model.n_contexts - len(seen))
     return {"seed": seed, "max_excess": max_excess, "final_k": model.n_contexts, "checks_after_start": late_checks}
 

@@ -40,6 +40,7 @@ from bridge.errors import (
 from bridge.models import (
     Contexts,
     FitRead,
+    Hyperparameters,
     Model,
     ModelCreate,
     Page,
@@ -358,12 +359,16 @@ class Models(_Resource):
         *,
         seed: int = 0,
         sigma: float | None = None,
-        hyperparameters: dict[str, float | int | str] | None = None,
+        hyperparameters: Hyperparameters | dict[str, Any] | None = None,
         vocabulary: Vocabulary | None = None,
     ) -> Model:
         """A new, empty model (the paper's 29 concepts unless ``vocabulary`` is given)."""
         body = ModelCreate(
-            name=name, seed=seed, sigma=sigma, hyperparameters=hyperparameters or {}, vocabulary=vocabulary
+            name=name,
+            seed=seed,
+            sigma=sigma,
+            hyperparameters=hyperparameters or Hyperparameters(),
+            vocabulary=vocabulary,
         )
         data = self._client.request("POST", "/v1/models", json=body.model_dump(mode="json", exclude_defaults=True))
         return self._client._cast(Model, data)

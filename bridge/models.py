@@ -69,13 +69,69 @@ class Vocabulary(RequestModel):
     verbs: list[str]
 
 
+class Priors(RequestModel):
+    """α and ξ, the symmetric Dirichlet priors of Eq. 5; None: the service's default (0.1)."""
+
+    alpha: float | None = Field(default=None, gt=0)
+    xi: float | None = Field(default=None, gt=0)
+
+
+class SamplerSettings(RequestModel):
+    """Gibbs sweeps of each step (docs/api.md, "Hyperparameters"); None: the service's default."""
+
+    sweeps: int | None = Field(default=None, ge=1)
+    scene_sweeps: int | None = Field(default=None, ge=1)
+    rejuvenation_tokens: int | None = Field(default=None, ge=0)
+    inference_sweeps: int | None = Field(default=None, ge=1)
+    inference_burn_in: int | None = Field(default=None, ge=0)
+
+
+class _KRule(RequestModel):
+    max_contexts: int | None = Field(default=None, ge=1)
+    birth_window: int | None = Field(default=None, ge=1)
+    birth_check_interval: int | None = Field(default=None, ge=1)
+    novelty_window: int | None = Field(default=None, ge=1)
+    scene_prior_strength: float | None = Field(default=None, gt=0)
+
+
+class ScenesRule(_KRule):
+    """The default K rule, scene-partition evidence; None: the service's default."""
+
+    name: Literal["scenes"] = "scenes"
+    partition_scans: int | None = Field(default=None, ge=1)
+    online_partition_scans: int | None = Field(default=None, ge=1)
+    partition_random_starts: int | None = Field(default=None, ge=0)
+    birth_margin: float | None = Field(default=None, ge=0)
+    online_birth_margin: float | None = Field(default=None, ge=0)
+    birth_proposals: int | None = Field(default=None, ge=1)
+    delta: float | None = Field(default=None, ge=0, le=1)
+    split_scans: int | None = Field(default=None, ge=0)
+
+
+class PaperRule(_KRule):
+    """The paper's Algorithm 2 (C_low ≠ ∅ under τ); None: the service's default."""
+
+    name: Literal["paper"]
+    tau: float | None = Field(default=None, gt=0, lt=1)
+    delta: float | None = Field(default=None, ge=0, le=1)
+
+
+class Hyperparameters(RequestModel):
+    """Incremental-LDA's settings, nested by concern as the service takes them (docs/api.md);
+    what is left out takes the service's default."""
+
+    priors: Priors = Field(default_factory=lambda: Priors())
+    sampler: SamplerSettings = Field(default_factory=lambda: SamplerSettings())
+    k_rule: Annotated[ScenesRule | PaperRule, Field(discriminator="name")] = Field(default_factory=lambda: ScenesRule())
+
+
 class ModelCreate(RequestModel):
     """A new model; ``hyperparameters`` are Incremental-LDA's (α, ξ, τ, δ, ...: docs/api.md), the service's defaults otherwise."""
 
     name: str = Field(min_length=1, max_length=200)
     seed: int = Field(0, ge=0)
     sigma: float | None = Field(None, ge=0, le=1, description="σ of Eq. 6; the service's default (0.5) when None.")
-    hyperparameters: dict[str, float | int | str] = Field(default_factory=dict)
+    hyperparameters: Hyperparameters = Field(default_factory=lambda: Hyperparameters())
     vocabulary: Vocabulary | None = None
 
 
@@ -86,7 +142,7 @@ class Model(ResponseModel):
     name: str
     seed: int
     sigma: float | None = None
-    hyperparameters: dict[str, float | int | str]
+    hyperparameters: dict[str, Any] = Field(description="Nested: priors, sampler, k_rule (docs/api.md).")
     vocabulary: dict[str, Any]
     context_count: int
     vocabulary_size: int

@@ -34,6 +34,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from core.context import IncrementalLDA
+from experiments.baselines.likelihood_rule import likelihood_model
 from sim.world import WorldConfig, generate_scenes
 
 RULES = ("scenes", "likelihood", "paper")
@@ -70,19 +71,24 @@ def _tokens_with_every_context(config: WorldConfig, n_scenes: int, seed: int) ->
 
 def forced_growth(scenes: list[list[str]], max_k: int, seed: int, tau: float | None) -> list[tuple[int, float]]:
     """(|C_low|, H̃) at K = 1..max_k along Algorithm 3's chain."""
-    options = {} if tau is None else {"tau": tau}
-    model = IncrementalLDA(seed=seed, max_contexts=max_k, **options).fit(scenes, n_contexts=1)
-    trace = [(len(model.low_confidence_concepts()), model.entropy())]
+    model = IncrementalLDA(seed=seed, max_contexts=max_k).fit(scenes, n_contexts=1)
+    trace = [(len(model.low_confidence_concepts(tau)), model.entropy())]
     while not model.context_cap_reached:
         model.grow_context()
-        model.sweep(model.hyperparameters.sweeps)
-        trace.append((len(model.low_confidence_concepts()), model.entropy()))
+        model.sweep(model.hyperparameters.sampler.sweeps)
+        trace.append((len(model.low_confidence_concepts(tau)), model.entropy()))
     return trace
 
 
 def stopping_k(scenes: list[list[str]], seed: int, rule: str, tau: float | None) -> int:
-    options = {} if tau is None else {"tau": tau}
-    return IncrementalLDA(seed=seed, k_selection=rule, **options).fit(scenes).n_contexts
+    """K where growth stops under ``rule`` (τ is the ``paper`` rule's; ``likelihood`` is the
+    experiments' baseline, :mod:`experiments.baselines.likelihood_rule`)."""
+    if rule == "likelihood":
+        return likelihood_model(seed=seed).fit(scenes).n_contexts
+    options: dict[str, Any] = {"k_selection": rule}
+    if tau is not None and rule == "paper":
+        options["tau"] = tau
+    return IncrementalLDA(seed=seed, **options).fit(scenes).n_contexts
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:

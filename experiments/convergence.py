@@ -52,6 +52,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from core.context import IncrementalLDA, low_confidence_concepts
+from core.context.k_selection import PAPER_TAU
 from core.errors import InvalidInputError
 from sim.world import WorldConfig, generate_scenes
 
@@ -137,13 +138,13 @@ def run_test_set(
         model = IncrementalLDA.from_state(saved)
         state, h = model.lda_state, model.hyperparameters
         if "c_low" in solver:
-            seed_tokens = low_confidence_concepts(state, h.tau)[state.words]
+            seed_tokens = low_confidence_concepts(state, PAPER_TAU)[state.words]
         else:
             worst = int(np.argmin(state.scene_fit()))
             seed_tokens = np.zeros(state.n_tokens, dtype=bool)
             seed_tokens[state.doc_offsets[worst] : state.doc_offsets[worst + 1]] = True
         scans = split_scans if solver.endswith("_split") else 0
-        state.grow_k_incrementally(seed_tokens, h.delta, np.random.default_rng(seed), split_scans=scans)
+        state.grow_k_incrementally(seed_tokens, h.k_rule.delta, np.random.default_rng(seed), split_scans=scans)
         entropies, accuracy = trace_run(model, sweeps - scans, truth)
         traces[solver], accuracies[solver] = [np.nan] * scans + entropies, [np.nan] * scans + accuracy
     batch = IncrementalLDA(seed=seed, sweeps=1).fit(scenes, n_contexts=3)

@@ -47,6 +47,9 @@ NAMING_CONVENTION = {
     "pk": "pk_%(table_name)s",
 }
 
+#: The form of a model's stored hyperparameters that this code writes (alembic 0006).
+HYPERPARAMETERS_VERSION = 2
+
 #: JSON everywhere, stored as JSONB on PostgreSQL.
 JSONType = JSON().with_variant(JSONB(), "postgresql")
 
@@ -110,6 +113,9 @@ class Model(Base):
     seed: Mapped[int] = mapped_column(BigInteger)
     sigma: Mapped[float] = mapped_column(Float)
     hyperparameters: Mapped[dict[str, Any]]
+    hyperparameters_version: Mapped[int] = mapped_column(Integer, default=HYPERPARAMETERS_VERSION, server_default="1")
+    """The form of ``hyperparameters``: 1 flat (before migration 0006; what a process of an
+    earlier version writes), 2 nested by concern (priors, sampler, k_rule)."""
     vocabulary: Mapped[dict[str, Any]]
     prototypes: Mapped[dict[str, Any] | None]
     concept_web: Mapped[dict[str, Any] | None]

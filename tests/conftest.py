@@ -144,13 +144,8 @@ def client(app: FastAPI) -> Iterator[TestClient]:
 
 #: Incremental-LDA settings small enough for tests (growth checks on a short window, few sweeps).
 FAST_HYPERPARAMETERS = {
-    "sweeps": 10,
-    "likelihood_samples": 2,
-    "birth_window": 6,
-    "birth_check_interval": 3,
-    "rejuvenation_tokens": 8,
-    "inference_sweeps": 10,
-    "inference_burn_in": 3,
+    "sampler": {"sweeps": 10, "rejuvenation_tokens": 8, "inference_sweeps": 10, "inference_burn_in": 3},
+    "k_rule": {"name": "scenes", "birth_window": 6, "birth_check_interval": 3},
 }
 
 

@@ -76,9 +76,12 @@ def test_plan_request_is_accepted_by_the_service_schema() -> None:
 
 def test_model_request_is_accepted_by_the_service_schema(world: World) -> None:
     vocabulary = Vocabulary.model_validate(world.vocabulary.to_dict())
-    request = ModelCreate(name="robot-7", seed=3, sigma=0.4, hyperparameters={"alpha": 0.2}, vocabulary=vocabulary)
+    hyperparameters = {"priors": {"alpha": 0.2}, "k_rule": {"name": "paper", "tau": 0.05}}
+    request = ModelCreate(name="robot-7", seed=3, sigma=0.4, hyperparameters=hyperparameters, vocabulary=vocabulary)
     accepted = ServiceModelCreate.model_validate(_dump(request))
-    assert (accepted.seed, accepted.sigma, accepted.hyperparameters.alpha) == (3, 0.4, 0.2)
+    assert (accepted.seed, accepted.sigma, accepted.hyperparameters.priors.alpha) == (3, 0.4, 0.2)
+    assert (accepted.hyperparameters.k_rule.name, accepted.hyperparameters.k_rule.tau) == ("paper", 0.05)
+    assert accepted.hyperparameters.priors.xi == 0.1 and accepted.hyperparameters.sampler.sweeps == 200
     assert accepted.vocabulary is not None and accepted.vocabulary.verbs == list(world.vocabulary.verbs)
 
 

@@ -8,8 +8,16 @@ from functools import cache
 import numpy as np
 import pytest
 
-from core.context import ContextModelState, IncrementalLDA, SceneUpdate
+from core.context import (
+    ContextModelState,
+    Hyperparameters,
+    IncrementalLDA,
+    PaperSettings,
+    SamplerSettings,
+    SceneUpdate,
+)
 from core.errors import InvalidInputError
+from experiments.baselines.likelihood_rule import likelihood_model
 from sim.world import WorldConfig, generate_scenes
 
 # Online tests use a small window so that growth checks stay cheap.
@@ -179,21 +187,24 @@ def test_posteriors_are_distributions() -> None:
 @pytest.mark.parametrize(
     ("options", "field"),
     [
-        ({"alpha": 0.0}, "alpha"),
-        ({"alpha": -1.0}, "alpha"),
-        ({"xi": 0}, "xi"),
-        ({"tau": 0.0}, "tau"),
-        ({"tau": 1.0}, "tau"),
-        ({"delta": -0.1}, "delta"),
-        ({"delta": 1.5}, "delta"),
-        ({"max_contexts": 0}, "max_contexts"),
-        ({"k_selection": "entropy"}, "k_selection"),
-        ({"likelihood_samples": 1}, "likelihood_samples"),
-        ({"scene_prior_strength": 0.0}, "scene_prior_strength"),
-        ({"partition_scans": 0}, "partition_scans"),
-        ({"online_birth_margin": -1.0}, "online_birth_margin"),
-        ({"partition_random_starts": -1}, "partition_random_starts"),
-        ({"inference_burn_in": 30}, "inference_burn_in"),
+        ({"alpha": 0.0}, "priors.alpha"),
+        ({"alpha": -1.0}, "priors.alpha"),
+        ({"xi": 0}, "priors.xi"),
+        ({"k_selection": "paper", "tau": 0.0}, "k_rule.tau"),
+        ({"k_selection": "paper", "tau": 1.0}, "k_rule.tau"),
+        ({"tau": 0.05}, "tau"),
+        ({"delta": -0.1}, "k_rule.delta"),
+        ({"k_selection": "paper", "delta": 1.5}, "k_rule.delta"),
+        ({"max_contexts": 0}, "k_rule.max_contexts"),
+        ({"k_selection": "entropy"}, "k_rule.name"),
+        ({"k_selection": "likelihood"}, "k_rule.name"),
+        ({"likelihood_samples": 2}, "likelihood_samples"),
+        ({"gamma": 1}, "gamma"),
+        ({"scene_prior_strength": 0.0}, "k_rule.scene_prior_strength"),
+        ({"partition_scans": 0}, "k_rule.partition_scans"),
+        ({"online_birth_margin": -1.0}, "k_rule.online_birth_margin"),
+        ({"partition_random_starts": -1}, "k_rule.partition_random_starts"),
+        ({"inference_burn_in": 30}, "sampler.inference_burn_in"),
         ({"seed": -1}, "seed"),
     ],
 )
@@ -240,7 +251,7 @@ def test_infer_scene_draws_what_a_fresh_generator_of_its_seed_draws() -> None:
     """The memoised random numbers (SeededUniforms) are a fresh default_rng(seed)'s, whichever
     scene length asked first."""
     model = IncrementalLDA(seed=0).fit(_paper_scenes(30, 0))
-    state, h = model.lda_state, model.hyperparameters
+    state, h = model.lda_state, model.hyperparameters.sampler
     short, long = list(_paper_scenes(40, 9)[0][:5]), [w for scene in _paper_scenes(40, 9)[:4] for w in scene]
     for words in (short, long, short):
         for seed in (12345, 12346):
@@ -248,3 +259,27 @@ def test_infer_scene_draws_what_a_fresh_generator_of_its_seed_draws() -> None:
                 model._ids(words), np.random.default_rng(seed), h.inference_sweeps, h.inference_burn_in
             )
             assert np.array_equal(model.infer_scene(words, seed=seed), expected)
+
+
+def test_flat_settings_and_nested_hyperparameters_make_the_same_model() -> None:
+    """The flat keywords are a short form of the nested settings: same seed, same chain."""
+    scenes = _paper_scenes(30, 4)
+    flat = IncrementalLDA(seed=3, k_selection="paper", tau=0.05, sweeps=20).fit(scenes)
+    nested = IncrementalLDA(
+        seed=3,
+        hyperparameters=Hyperparameters(sampler=SamplerSettings(sweeps=20), k_rule=PaperSettings(tau=0.05)),
+    ).fit(scenes)
+    assert flat.hyperparameters == nested.hyperparameters
+    assert np.array_equal(flat.lda_state.assignments, nested.lda_state.assignments)
+    restored = IncrementalLDA.from_state(flat.to_state())
+    assert restored.hyperparameters == flat.hyperparameters and restored.hyperparameters.k_rule.name == "paper"
+    with pytest.raises(InvalidInputError, match="hyperparameters or flat settings"):
+        IncrementalLDA(hyperparameters=Hyperparameters(), sweeps=3)
+
+
+def test_the_likelihood_baseline_lives_in_the_experiments_and_is_not_restored_by_the_core() -> None:
+    model = likelihood_model(seed=0, sweeps=20, likelihood_samples=3).fit(_paper_scenes(20, 0))
+    assert model.hyperparameters.k_rule.name == "likelihood" and model.n_contexts >= 1
+    model.check_invariants()
+    with pytest.raises(InvalidInputError, match="experiments/baselines"):
+        IncrementalLDA.from_state(model.to_state())

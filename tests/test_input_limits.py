@@ -125,10 +125,9 @@ def shared_model(shared_client: TestClient) -> str:
 @pytest.mark.parametrize(
     "value", ["1e308", "1e3000", "1000.5", "0", "0.0", "1e-7", "-1", "NaN", "Infinity", "-Infinity"]
 )
-@pytest.mark.parametrize("name", ["alpha", "xi", "scene_prior_strength"])
+@pytest.mark.parametrize("name", ["priors.alpha", "priors.xi", "k_rule.scene_prior_strength"])
 def test_dirichlet_priors_outside_their_range_are_refused(shared_client: TestClient, name: str, value: str) -> None:
-    body = '{"name": "bad", "hyperparameters": {"' + name + '": ' + value + "}}"
-    response = shared_client.post("/v1/models", content=body, headers=JSON)
+    response = shared_client.post("/v1/models", content=_body_setting(name, value), headers=JSON)
     assert response.status_code == 422, response.text
     assert response.json()["error"] == "invalid_input" and response.json()["field"] == f"hyperparameters.{name}"
 
@@ -136,28 +135,44 @@ def test_dirichlet_priors_outside_their_range_are_refused(shared_client: TestCli
 @pytest.mark.parametrize(
     ("name", "value"),
     [
-        ("tau", "0"),
-        ("tau", "1"),
-        ("delta", "1.5"),
-        ("delta", "-0.1"),
-        ("growth_z", "101"),
-        ("online_growth_z", "NaN"),
-        ("online_birth_margin", "1e5"),
-        ("birth_margin", "-1"),
-        ("sweeps", "0"),
-        ("sweeps", "10001"),
-        ("max_contexts", "101"),
-        ("rejuvenation_tokens", "1e400"),
-        ("inference_sweeps", "NaN"),
+        ("k_rule[paper].tau", "0"),
+        ("k_rule[paper].tau", "1"),
+        ("k_rule[paper].delta", "1.5"),
+        ("k_rule.delta", "-0.1"),
+        ("k_rule.online_birth_margin", "1e5"),
+        ("k_rule.birth_margin", "-1"),
+        ("k_rule.birth_margin", "NaN"),
+        ("sampler.sweeps", "0"),
+        ("sampler.sweeps", "10001"),
+        ("k_rule.max_contexts", "101"),
+        ("sampler.rejuvenation_tokens", "1e400"),
+        ("sampler.inference_sweeps", "NaN"),
     ],
 )
 def test_other_hyperparameters_outside_their_range_are_refused(
     shared_client: TestClient, name: str, value: str
 ) -> None:
-    body = '{"name": "bad", "hyperparameters": {"' + name + '": ' + value + "}}"
-    response = shared_client.post("/v1/models", content=body, headers=JSON)
+    response = shared_client.post("/v1/models", content=_body_setting(name, value), headers=JSON)
     assert response.status_code == 422, response.text
-    assert response.json()["field"] == f"hyperparameters.{name}"
+    assert response.json()["field"] == "hyperparameters." + name.replace("[paper]", "")
+
+
+def _body_setting(name: str, value: str) -> str:
+    """A model body setting ``group.setting`` (``k_rule[paper].setting``: under the paper rule) to
+    ``value``, written as JSON text so that NaN and out-of-range literals reach the service."""
+    group, setting = name.split(".")
+    rule = '"name": "paper", ' if group == "k_rule[paper]" else ""
+    return (
+        '{"name": "bad", "hyperparameters": {"'
+        + group.split("[")[0]
+        + '": {'
+        + rule
+        + '"'
+        + setting
+        + '": '
+        + value
+        + "}}}"
+    )
 
 
 @pytest.mark.parametrize("value", ["NaN", "-Infinity", "1.5", "-0.5"])
@@ -170,7 +185,9 @@ def test_sigma_outside_zero_one_is_refused(shared_client: TestClient, value: str
 def test_at_either_end_of_the_prior_range_every_posterior_is_a_distribution(
     shared_client: TestClient, prior: float
 ) -> None:
-    model_id = _new_model(shared_client, hyperparameters={**FAST_HYPERPARAMETERS, "alpha": prior, "xi": prior})
+    model_id = _new_model(
+        shared_client, hyperparameters={**FAST_HYPERPARAMETERS, "priors": {"alpha": prior, "xi": prior}}
+    )
     for concepts in [*CONTEXT_CONCEPTS.values()] * 2:
         response = shared_client.post(f"/v1/models/{model_id}/scenes", json={"objects": [{"concepts": concepts}]})
         assert response.status_code == 201, response.text
@@ -258,8 +275,10 @@ def test_nan_literals_are_refused_on_their_field(shared_client: TestClient, shar
         f"/v1/models/{shared_model}/scenes", content='{"objects": [{"concepts": {"cup": NaN}}]}', headers=JSON
     )
     assert scene.status_code == 422 and scene.json()["field"] == "objects[0].concepts.cup"
-    model = shared_client.post("/v1/models", content='{"name": "nan", "hyperparameters": {"xi": NaN}}', headers=JSON)
-    assert model.status_code == 422 and model.json()["field"] == "hyperparameters.xi"
+    model = shared_client.post(
+        "/v1/models", content='{"name": "nan", "hyperparameters": {"priors": {"xi": NaN}}}', headers=JSON
+    )
+    assert model.status_code == 422 and model.json()["field"] == "hyperparameters.priors.xi"
 
 
 def test_bodies_within_the_limits_are_served(shared_client: TestClient, shared_model: str) -> None:

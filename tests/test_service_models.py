@@ -8,10 +8,13 @@ from tests.conftest import FAST_HYPERPARAMETERS
 
 
 def test_create_get_list_and_delete(client: TestClient) -> None:
-    created = client.post("/v1/models", json={"name": "kitchen robot", "seed": 3, "hyperparameters": {"alpha": 0.5}})
+    created = client.post(
+        "/v1/models", json={"name": "kitchen robot", "seed": 3, "hyperparameters": {"priors": {"alpha": 0.5}}}
+    )
     assert created.status_code == 201
     model = created.json()
-    assert model["hyperparameters"]["alpha"] == 0.5 and model["hyperparameters"]["xi"] == 0.1
+    assert model["hyperparameters"]["priors"] == {"alpha": 0.5, "xi": 0.1}
+    assert model["hyperparameters"]["k_rule"]["name"] == "scenes"
     assert (model["context_count"], model["vocabulary_size"], model["scene_count"]) == (1, 29, 0)
     assert model["vocabulary"]["nouns"] == ["box", "ball", "cylinder", "cup", "plate", "tool"]
     other = client.post("/v1/models", json={"name": "workshop robot"}).json()
@@ -49,10 +52,52 @@ def test_a_custom_vocabulary_and_bad_hyperparameters(client: TestClient) -> None
     duplicate = client.post("/v1/models", json={"name": "x", "vocabulary": {**vocabulary, "verbs": ["mug"]}})
     assert duplicate.status_code == 422 and duplicate.json()["field"] == "vocabulary"
     burn_in = client.post(
-        "/v1/models", json={"name": "x", "hyperparameters": {"inference_sweeps": 5, "inference_burn_in": 5}}
+        "/v1/models",
+        json={"name": "x", "hyperparameters": {"sampler": {"inference_sweeps": 5, "inference_burn_in": 5}}},
     )
-    assert burn_in.status_code == 422 and burn_in.json()["field"] == "hyperparameters.inference_burn_in"
-    negative = client.post("/v1/models", json={"name": "x", "hyperparameters": {"alpha": -1}})
-    assert negative.status_code == 422 and negative.json()["field"] == "hyperparameters.alpha"
-    unknown = client.post("/v1/models", json={"name": "x", "hyperparameters": {"gamma": 1}})
-    assert unknown.status_code == 422 and unknown.json()["field"] == "hyperparameters.gamma"
+    assert burn_in.status_code == 422 and burn_in.json()["field"] == "hyperparameters.sampler.inference_burn_in"
+    negative = client.post("/v1/models", json={"name": "x", "hyperparameters": {"priors": {"alpha": -1}}})
+    assert negative.status_code == 422 and negative.json()["field"] == "hyperparameters.priors.alpha"
+    unknown = client.post("/v1/models", json={"name": "x", "hyperparameters": {"priors": {"gamma": 1}}})
+    assert unknown.status_code == 422 and unknown.json()["field"] == "hyperparameters.priors.gamma"
+    misplaced = client.post("/v1/models", json={"name": "x", "hyperparameters": {"sampler": {}, "tau": 0.1}})
+    assert misplaced.status_code == 422 and misplaced.json()["field"] == "hyperparameters.tau"
+
+
+def test_the_paper_rule_is_selectable_and_likelihood_is_refused_naming_the_field(client: TestClient) -> None:
+    paper = {"name": "paper", "hyperparameters": {"k_rule": {"name": "paper", "tau": 0.05}}}
+    model = client.post("/v1/models", json=paper).json()
+    assert model["hyperparameters"]["k_rule"] == {
+        "name": "paper", "tau": 0.05, "delta": 0.05, "max_contexts": 10, "birth_window": 100,
+        "birth_check_interval": 25, "novelty_window": 20, "scene_prior_strength": 1.0,
+    }  # fmt: skip
+    for hyperparameters in ({"k_rule": {"name": "likelihood"}}, {"k_selection": "likelihood"}):
+        refused = client.post("/v1/models", json={"name": "x", "hyperparameters": hyperparameters})
+        assert refused.status_code == 422 and refused.json()["field"] == "hyperparameters.k_rule"
+        assert "experiments/baselines/likelihood_rule.py" in refused.json()["detail"]
+    wrong_group = client.post(
+        "/v1/models", json={"name": "x", "hyperparameters": {"k_rule": {"name": "scenes", "tau": 0.05}}}
+    )
+    assert wrong_group.status_code == 422 and wrong_group.json()["field"] == "hyperparameters.k_rule.tau"
+
+
+def test_the_deprecated_flat_body_is_accepted_and_answered_nested(client: TestClient) -> None:
+    """Today's flat body keeps working: each setting lands in its group, and the settings the
+    chosen rule does not have (the retired likelihood rule's, another rule's) are dropped."""
+    flat = {"alpha": 0.5, "sweeps": 12, "birth_check_interval": 200, "likelihood_samples": 2, "tau": 0.2}
+    model = client.post("/v1/models", json={"name": "flat", "hyperparameters": flat}).json()
+    nested = client.post(
+        "/v1/models",
+        json={
+            "name": "nested",
+            "hyperparameters": {
+                "priors": {"alpha": 0.5}, "sampler": {"sweeps": 12}, "k_rule": {"birth_check_interval": 200},
+            },
+        },
+    ).json()  # fmt: skip
+    assert model["hyperparameters"] == nested["hyperparameters"]
+    assert model["hyperparameters"]["priors"]["alpha"] == 0.5 and "tau" not in model["hyperparameters"]["k_rule"]
+    paper = client.post("/v1/models", json={"name": "p", "hyperparameters": {"k_selection": "paper", "tau": 0.2}})
+    assert paper.json()["hyperparameters"]["k_rule"]["tau"] == 0.2
+    bad = client.post("/v1/models", json={"name": "x", "hyperparameters": {"alpha": -1}})
+    assert bad.status_code == 422 and bad.json()["field"] == "hyperparameters.priors.alpha"

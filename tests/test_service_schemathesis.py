@@ -53,7 +53,7 @@ def _target(request: pytest.FixtureRequest, directory, backend: str) -> Iterator
     url = migrated_database(backend, request, directory)
     settings = make_settings(url, write_key=WRITE_KEY, read_key="fuzz-read-key")
     with TestClient(create_app(settings), headers={"X-API-Key": WRITE_KEY}) as client:
-        body = {"name": "fuzzed", "hyperparameters": {"sweeps": 5, "birth_window": 5}}
+        body = {"name": "fuzzed", "hyperparameters": {"sampler": {"sweeps": 5}, "k_rule": {"birth_window": 5}}}
         fitted, empty = (client.post("/v1/models", json=body).json()["id"] for _ in range(2))
         client.post(
             f"/v1/models/{fitted}/training-objects",

@@ -31,14 +31,14 @@ SCENES = SMALL_SCENES + [
     [concept for obj in scene.objects for concept in obj.concepts]
     for scene in World.paper(0).scenes(12, seed=0, objects_per_scene=3)
 ]
-FAST = {"sweeps": 10, "likelihood_samples": 2, "birth_window": 4, "birth_check_interval": 2, "rejuvenation_tokens": 8}
+FAST = {"sweeps": 10, "birth_window": 4, "birth_check_interval": 2, "rejuvenation_tokens": 8}
 
 
 def _store_model(engine: Engine, lda: IncrementalLDA) -> None:
     _, write = create_session_makers(engine)
     with unit_of_work(write) as session:
         model_repository.add_model(
-            session, model_id="m", name="m", seed=1, sigma=0.5, hyperparameters=FAST, vocabulary={}
+            session, model_id="m", name="m", seed=1, sigma=0.5, hyperparameters=lda.hyperparameters.to_dict(), vocabulary={}
         )
         lda_repository.create_state(
             session, "m", context_count=lda.n_contexts, state={"rng_state": lda.to_state().rng_state}, words=[]

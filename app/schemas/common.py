@@ -10,7 +10,9 @@ T = TypeVar("T")
 
 #: Tags of the two-shape unions below; they are left out of the field names of errors.
 AS_LIST, AS_MAP, AS_BASE64 = "as list", "as map", "as base64"
-UNION_TAGS = frozenset({AS_LIST, AS_MAP, AS_BASE64})
+#: Tags of the K rule's union (app/schemas/models.py), told apart by its ``name``.
+SCENES_RULE, PAPER_RULE = "scenes rule", "paper rule"
+UNION_TAGS = frozenset({AS_LIST, AS_MAP, AS_BASE64, SCENES_RULE, PAPER_RULE})
 
 
 def _shape(value: Any) -> str:

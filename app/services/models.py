@@ -8,10 +8,11 @@ from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput
 from app.registry import FittedPerception, ModelRegistry, ModelRuntime, jsonable
+from app.schemas.models import Hyperparameters as HyperparametersSchema
 from app.schemas.models import ModelCreate, ModelRead, VocabularySchema
 from app.services.perception import Perception
 from app.stream import CLOSE_NORMAL, StreamHub
-from core.context.incremental import Hyperparameters, IncrementalLDA
+from core.context import Hyperparameters, IncrementalLDA
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary, paper_vocabulary
 from storage.repositories import incremental_lda as lda_repository
@@ -22,12 +23,12 @@ from storage.unit_of_work import after_commit
 def create_model(session: Session, registry: ModelRegistry, body: ModelCreate) -> ModelRuntime:
     """A new model with K = 1 and the vocabulary's concepts as its first words; registered on commit."""
     vocabulary = _vocabulary(body.vocabulary)
-    hyperparameters = body.hyperparameters.model_dump()
     try:
-        Hyperparameters(**hyperparameters)
+        settings = Hyperparameters.from_dict(body.hyperparameters.model_dump())
     except InvalidInputError as error:
         raise InvalidInput(f"hyperparameters.{error.field}", error.problem) from None
-    incremental_lda = IncrementalLDA(vocabulary.concepts, seed=body.seed, **hyperparameters)
+    hyperparameters = settings.to_dict()
+    incremental_lda = IncrementalLDA(vocabulary.concepts, seed=body.seed, hyperparameters=settings)
     row = model_repository.add_model(
         session,
         model_id=uuid.uuid4().hex,
@@ -85,7 +86,7 @@ def model_read(model: ModelRuntime) -> ModelRead:
         name=model.name,
         seed=model.seed,
         sigma=model.sigma,
-        hyperparameters=model.hyperparameters,
+        hyperparameters=HyperparametersSchema.model_validate(model.hyperparameters),
         vocabulary=VocabularySchema.model_validate(model.vocabulary.to_dict()),
         context_count=summary.context_count,
         vocabulary_size=summary.vocabulary_size,

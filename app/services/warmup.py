@@ -53,7 +53,9 @@ from core.vocabulary import Vocabulary
 
 logger = logging.getLogger("contextweb")
 
-#: Scenes learned by the throwaway model: more than one, so that its growth checks run.
+#: Scenes learned by the throwaway model: with ``birth_check_interval=1`` scenes 1 and 2 run the
+#: scheduled growth checks and scene 3 the novelty test (``LDAState.scene_novelty``) that decides
+#: the others, so every kernel of an online update is compiled.
 WARM_UP_SCENES = 3
 #: The recorded labels the warm-up replays (``python -m sim.record_warmup`` writes it).
 WARM_UP_FILE: Traversable = resources.files("app") / "data" / "warmup_scenes.json"
@@ -66,7 +68,7 @@ def warm_up_kernels() -> float:
     started = time.perf_counter()
     record = json.loads(WARM_UP_FILE.read_text(encoding="utf-8"))
     perception = _throwaway_perception(record)
-    incremental_lda = IncrementalLDA(perception.vocabulary.concepts, seed=0)
+    incremental_lda = IncrementalLDA(perception.vocabulary.concepts, seed=0, birth_check_interval=1)
     body = SceneCreate.model_validate(_scene(record))
     for _ in range(WARM_UP_SCENES):
         analysis = analyse_objects(perception, body.objects, "warm-up")

@@ -377,7 +377,7 @@ class _FoldIn:
         state = self._model.lda_state
         if ids.shape[0] == 0:
             return np.full(state.n_contexts, 1.0 / state.n_contexts)
-        settings = self._model.hyperparameters
+        settings = self._model.hyperparameters.sampler
         return state.fold_in(ids, self._uniforms, settings.inference_sweeps, settings.inference_burn_in)
 
 

@@ -112,7 +112,8 @@ def find_problems(session: Session, model_id: str) -> list[Problem]:
     if state is None:
         problems.append(Problem("incremental_lda_state has no row for the model", repairable=False))
     else:
-        max_contexts = model.hyperparameters.get("max_contexts") if isinstance(model.hyperparameters, dict) else None
+        k_rule = model.hyperparameters.get("k_rule") if isinstance(model.hyperparameters, dict) else None
+        max_contexts = k_rule.get("max_contexts") if isinstance(k_rule, dict) else None
         problems += _state_problems(session, model_id, state, scenes.count, words.count, max_contexts)
         problems += _checkpoint_problems(session, model_id, state.version)
     return problems

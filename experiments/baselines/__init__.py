@@ -1,0 +1,1 @@
+"""Rules the experiments measure against, which the service does not offer."""

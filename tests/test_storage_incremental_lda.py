@@ -38,7 +38,13 @@ def _store_model(engine: Engine, lda: IncrementalLDA) -> None:
     _, write = create_session_makers(engine)
     with unit_of_work(write) as session:
         model_repository.add_model(
-            session, model_id="m", name="m", seed=1, sigma=0.5, hyperparameters=lda.hyperparameters.to_dict(), vocabulary={}
+            session,
+            model_id="m",
+            name="m",
+            seed=1,
+            sigma=0.5,
+            hyperparameters=lda.hyperparameters.to_dict(),
+            vocabulary={},
         )
         lda_repository.create_state(
             session, "m", context_count=lda.n_contexts, state={"rng_state": lda.to_state().rng_state}, words=[]

@@ -175,11 +175,11 @@ class VocabularySchema(RequestSchema):
 
 
 class ModelCreate(RequestSchema):
-    model_config = {
-        "json_schema_extra": {
+    model_config = ConfigDict(
+        json_schema_extra={
             "examples": [{"name": "icub-kitchen", "seed": 7, "hyperparameters": {"priors": {"alpha": 0.1}}}]
         }
-    }
+    )
 
     name: Name
     seed: int = Field(0, ge=0, le=2**63 - 1, description="Seed of the model's random generator.")
@@ -195,8 +195,8 @@ class ModelCreate(RequestSchema):
 
 
 class ModelRead(ReadSchema):
-    model_config = {
-        "json_schema_extra": {
+    model_config = ConfigDict(
+        json_schema_extra={
             "examples": [
                 {
                     "id": "3f2c0b9e5d7a4e1f8a6b2c4d9e0f1a2b",
@@ -215,7 +215,7 @@ class ModelRead(ReadSchema):
                 }
             ]
         }
-    }
+    )
 
     id: str
     name: str

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -228,7 +228,7 @@ class IncrementalLDA:
             contexts_before=contexts_before,
             contexts_after=state.n_contexts,
             vocabulary_additions=tuple(additions),
-            rng_state=self._rng.bit_generator.state,
+            rng_state=dict(self._rng.bit_generator.state),
             context_posterior=theta,
             growth_checked=growth_checked,
         )
@@ -266,7 +266,8 @@ class IncrementalLDA:
             if not 0 <= scene < self.n_scenes:
                 raise InvalidInputError("scene", f"no learned scene {scene} (there are {self.n_scenes})")
             return self._state.context_given_scene(int(scene), int(scene) + 1)[0]
-        return self.infer_scene(scene, seed=seed)
+        # Concept names; a bool lands here too, and infer_scene's validation refuses it by name.
+        return self.infer_scene(cast(Sequence[str], scene), seed=seed)
 
     def concept_given_context(self) -> np.ndarray:
         """P(c | χ), K × |W|, rows in context order, columns in :attr:`vocabulary` order."""
@@ -326,7 +327,7 @@ class IncrementalLDA:
             assignments=state.assignments.copy(),
             doc_offsets=state.doc_offsets.copy(),
             n_kw=np.ascontiguousarray(state.n_kw),
-            rng_state=self._rng.bit_generator.state,
+            rng_state=dict(self._rng.bit_generator.state),
         )
 
     @classmethod

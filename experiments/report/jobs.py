@@ -1,17 +1,23 @@
 """Running the report's jobs: every experiment of :data:`experiments.EXPERIMENTS` with the defaults of
-its own parser (what ``contextweb experiment NAME`` would run), and §V-F's running times."""
+its own parser (what ``contextweb experiment NAME`` would run) at each seed, its ablations
+(:data:`ABLATIONS`), and §V-F's running times; in parallel processes (:func:`run_jobs`)."""
 
 from __future__ import annotations
 
 import argparse
 import importlib
 import json
+import multiprocessing
+import os
 import time
 import traceback
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+from tqdm import tqdm
 
 import experiments
 from core.errors import InvalidInputError
@@ -19,11 +25,23 @@ from experiments.report.claim import Status, Summary, Verdict
 from experiments.report.claims import CLAIMS
 from experiments.report.claims.running_times import RUNNING_TIMES, running_times
 
+#: The report's seeds unless told otherwise (``--seeds``): five, none of them the tests'.
+DEFAULT_SEEDS: tuple[int, ...] = (0, 1, 2, 3, 4)
+
+#: Ablation name -> the experiment options it changes from the headline protocol (the hard world,
+#: documents perceived). A claim lists the ablations shown beside it (``Claim.ablations``).
+ABLATIONS: dict[str, dict[str, str]] = {
+    "easy": {"world": "easy"},
+    "labels": {"documents": "labels"},
+}
+
 
 @dataclass
 class JobResult:
     name: str
     folder: Path
+    seed: int = 0
+    ablation: str | None = None
     summary: Summary | None = None
     error: str | None = None
     seconds: float = 0.0
@@ -34,13 +52,20 @@ class JobResult:
 @dataclass
 class ReportResult:
     page: Path
-    jobs: dict[str, JobResult]
+    #: Job label (``NAME`` or ``NAME@ABLATION``) -> its run at each seed, in seed order.
+    jobs: dict[str, list[JobResult]]
     verdicts: dict[str, Verdict] = field(default_factory=dict)
+    #: Claim name -> ablation -> verdict over the seeds.
+    ablation_verdicts: dict[str, dict[str, Verdict]] = field(default_factory=dict)
 
     @property
     def failed(self) -> dict[str, str]:
-        """Jobs that failed and claims that could not be judged, with the error."""
-        jobs = {name: job.error for name, job in self.jobs.items() if job.error is not None}
+        """Jobs that failed (at any seed) and claims that could not be judged, with the error."""
+        jobs = {
+            label: next(run.error for run in runs if run.error is not None)
+            for label, runs in self.jobs.items()
+            if any(run.error is not None for run in runs)
+        }
         return jobs | {name: v.reason for name, v in self.verdicts.items() if v.status is Status.NOT_RUN}
 
     @property
@@ -54,18 +79,31 @@ def error_text(exception: BaseException) -> str:
     return f"{type(exception).__name__}: {exception}{at}".replace("\n", " ")
 
 
-def experiment_args(name: str, out: Path, quick: bool, seed: int) -> tuple[Any, argparse.Namespace]:
-    """The experiment's module and the arguments ``contextweb experiment NAME`` would give it by default."""
+def job_label(name: str, ablation: str | None) -> str:
+    return name if ablation is None else f"{name}@{ablation}"
+
+
+def experiment_args(
+    name: str, out: Path, quick: bool, seed: int, options: Mapping[str, str] | None = None
+) -> tuple[Any, argparse.Namespace]:
+    """The experiment's module and the arguments ``contextweb experiment NAME`` would give it by
+    default, with ``options`` (an ablation's) changed; an option the experiment lacks is refused."""
     module = importlib.import_module(experiments.EXPERIMENTS[name])
     parser = argparse.ArgumentParser(prog=f"contextweb experiment {name}")
     module.add_arguments(parser)
     args = parser.parse_args([])
+    for option, value in (options or {}).items():
+        if not hasattr(args, option):
+            raise InvalidInputError("ablation", f"experiment {name!r} has no --{option}")
+        setattr(args, option, value)
     args.out, args.json, args.quick, args.seed = out, False, quick, seed
     return module, args
 
 
-def run_job(name: str, folder: Path, quick: bool, seed: int, bench_results: Path) -> JobResult:
-    job = JobResult(name, folder)
+def run_job(
+    name: str, folder: Path, quick: bool, seed: int, bench_results: Path, ablation: str | None = None
+) -> JobResult:
+    job = JobResult(name, folder, seed, ablation)
     start = time.perf_counter()
     try:
         if name == RUNNING_TIMES:
@@ -73,7 +111,8 @@ def run_job(name: str, folder: Path, quick: bool, seed: int, bench_results: Path
         elif name not in experiments.EXPERIMENTS:
             raise LookupError(f"experiment {name!r} is not registered in experiments.EXPERIMENTS")
         else:
-            module, args = experiment_args(name, folder, quick, seed)
+            options = ABLATIONS[ablation] if ablation is not None else None
+            module, args = experiment_args(name, folder, quick, seed, options)
             folder.mkdir(parents=True, exist_ok=True)
             job.summary = module.run(args)
         folder.mkdir(parents=True, exist_ok=True)
@@ -82,6 +121,66 @@ def run_job(name: str, folder: Path, quick: bool, seed: int, bench_results: Path
         job.error = error_text(exception)
     job.seconds = time.perf_counter() - start
     return job
+
+
+@dataclass(frozen=True)
+class JobSpec:
+    """One (experiment, ablation, seed) run: its output folder is ``out/LABEL/seed-S``."""
+
+    name: str
+    ablation: str | None
+    seed: int
+
+    @property
+    def label(self) -> str:
+        return job_label(self.name, self.ablation)
+
+
+def job_specs(names: Sequence[str], seeds: Sequence[int]) -> list[JobSpec]:
+    """Every named job at every seed, with the ablations its claims show; §V-F's running times
+    once (they measure the code, not a world)."""
+    specs = []
+    for name in names:
+        if name == RUNNING_TIMES:
+            specs.append(JobSpec(name, None, seeds[0]))
+            continue
+        ablations = dict.fromkeys(a for claim in CLAIMS if claim.job == name for a in claim.ablations)
+        specs += [JobSpec(name, ablation, seed) for ablation in (None, *ablations) for seed in seeds]
+    return specs
+
+
+def _run_spec(spec: JobSpec, out: Path, quick: bool, bench_results: Path) -> JobResult:
+    return run_job(spec.name, out / spec.label / f"seed-{spec.seed}", quick, spec.seed, bench_results, spec.ablation)
+
+
+def run_jobs(
+    specs: Sequence[JobSpec], out: Path, quick: bool, bench_results: Path, workers: int | None = None
+) -> dict[str, list[JobResult]]:
+    """Every job in parallel processes (``workers``, default one per core) with a progress bar;
+    results by label, each label's runs in seed order. Forked workers see the registry as this
+    process has it (a test may register an experiment)."""
+    workers = workers or os.cpu_count() or 1
+    results: dict[JobSpec, JobResult] = {}
+    progress = tqdm(total=len(specs), desc="report", unit="job")
+    if workers == 1:
+        for spec in specs:
+            progress.set_postfix_str(f"{spec.label} seed {spec.seed}")
+            results[spec] = _run_spec(spec, out, quick, bench_results)
+            progress.update()
+    else:
+        context = multiprocessing.get_context("fork")
+        with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+            futures = {pool.submit(_run_spec, spec, out, quick, bench_results): spec for spec in specs}
+            for future in as_completed(futures):
+                spec = futures[future]
+                results[spec] = future.result()
+                progress.set_postfix_str(f"{spec.label} seed {spec.seed}")
+                progress.update()
+    progress.close()
+    grouped: dict[str, list[JobResult]] = {}
+    for spec in specs:
+        grouped.setdefault(spec.label, []).append(results[spec])
+    return grouped
 
 
 def job_names(only: Sequence[str] | None) -> list[str]:

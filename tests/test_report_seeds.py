@@ -1,0 +1,53 @@
+"""Verdicts over seeds (experiments.report.seeds): the median summary, the 4-of-5 rule, tables over seeds."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from experiments.report import Status
+from experiments.report.claims import fig_13
+from experiments.report.seeds import (
+    judge_over_seeds,
+    median_summary,
+    seeds_needed,
+    table_over_seeds,
+)
+
+
+def test_seeds_needed_is_four_of_five_and_every_one_of_few() -> None:
+    assert [seeds_needed(n) for n in (1, 2, 3, 4, 5, 10)] == [1, 2, 3, 4, 4, 8]
+
+
+def test_median_summary_takes_numbers_item_by_item_never_as_infinity_and_text_by_majority() -> None:
+    summaries: list[dict[str, Any]] = [
+        {"a": 1, "b": [0.1, 2.0], "never": None, "name": "x", "kept": ["p"]},
+        {"a": 3, "b": [0.3, 1.0], "never": 4, "name": "y", "kept": ["p", "q"]},
+        {"a": 2, "b": [0.2, 3.0], "never": None, "name": "y", "kept": ["p"]},
+    ]
+    assert median_summary(summaries) == {"a": 2, "b": [0.2, 2.0], "never": None, "name": "y", "kept": ["p"]}
+    assert median_summary([{"n": 4}, {"n": 5}]) == {"n": 4.5}
+    assert median_summary([{"n": 3}]) == {"n": 3}
+
+
+def _recognition(perception: float, web: float, context: float) -> dict[str, Any]:
+    return {
+        method: {"noun_accuracy": value, "adjective_accuracy": value, "overall_accuracy": value}
+        for method, value in (("perception", perception), ("concept_web", web), ("in_context", context))
+    }
+
+
+def test_a_claim_must_hold_at_the_median_and_at_four_of_five_seeds() -> None:
+    good, bad = _recognition(0.6, 0.7, 0.8), _recognition(0.8, 0.7, 0.6)
+    holds = judge_over_seeds(fig_13.CLAIMS[0], [good, good, good, good, bad], seeds=[10, 11, 12, 13, 14])
+    assert holds.verdict.status is not Status.NOT_REPRODUCED and holds.holding == 4
+    assert "holds at 4 of 5 seeds (needs 4)" in holds.verdict.reason
+    three = judge_over_seeds(fig_13.CLAIMS[0], [good, good, good, bad, bad], seeds=[10, 11, 12, 13, 14])
+    assert three.verdict.status is Status.NOT_REPRODUCED
+    assert "only at 3 of 5 seeds" in three.verdict.reason and "seed 13:" in three.verdict.reason
+
+
+def test_tables_over_seeds_show_the_median_and_the_range_where_it_varies() -> None:
+    summaries = [_recognition(0.6, 0.7, x) for x in (0.8, 0.9, 0.85)]
+    table = table_over_seeds(fig_13.CLAIMS[0], summaries)
+    assert table[1][1] == "0.600"
+    assert table[3][1] == "0.850 [0.800–0.900]"

@@ -12,6 +12,7 @@ from experiments.report.seeds import (
     seeds_needed,
     table_over_seeds,
 )
+from tests.test_report_verdicts import _recognition as recognition_summary
 
 
 def test_seeds_needed_is_four_of_five_and_every_one_of_few() -> None:
@@ -30,10 +31,7 @@ def test_median_summary_takes_numbers_item_by_item_never_as_infinity_and_text_by
 
 
 def _recognition(perception: float, web: float, context: float) -> dict[str, Any]:
-    return {
-        method: {"noun_accuracy": value, "adjective_accuracy": value, "overall_accuracy": value}
-        for method, value in (("perception", perception), ("concept_web", web), ("in_context", context))
-    }
+    return recognition_summary((perception, web, context, context))
 
 
 def test_a_claim_must_hold_at_the_median_and_at_four_of_five_seeds() -> None:

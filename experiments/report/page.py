@@ -10,7 +10,7 @@ import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
-from experiments.report.claim import Claim, Status, Summary, Table, Verdict, number
+from experiments.report.claim import Claim, Status, Summary, Table, Verdict
 from experiments.report.jobs import JobResult, ReportResult, error_text, job_label
 from experiments.report.seeds import RULE, SeedVerdict, judge_over_seeds, median_summary, table_over_seeds
 
@@ -50,9 +50,9 @@ def headline_text(claim: Claim, runs: Sequence[JobResult]) -> str:
     values = [read(summary) for summary in found]
     known = [v for v in values if v is not None]
     median = median_summary(values)
-    text = number(median) if median is not None else "never"
+    text = f"{median:.4g}" if median is not None else "never"
     if known and min(known) != max(known):
-        text += f" [{number(min(known))}–{number(max(known))}]"
+        text += f" [{min(known):.4g}–{max(known):.4g}]"
     return text
 
 

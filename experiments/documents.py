@@ -19,7 +19,8 @@ Choices the paper leaves open, written down:
 - **The world is fixed per experiment seed** (``World.paper(seed, world)``), and test sets draw
   their scenes from its objects with their own seeds: perceiving the 60 objects of a new world
   per test set would cost a minute each.
-- **Quick runs** (``--quick``) perceive recognition's quick objects only, and scenes draw from them.
+- **Quick runs** (``--quick``) perceive recognition's quick objects only, and scenes draw from them
+  (label documents cost nothing: they keep every object).
 
 Perceived documents are memoised per (world, seed, quick) in the process; the features behind
 them are also cached on disk when ``context_scenes.FEATURE_CACHE`` is set (the report sets it), so
@@ -96,10 +97,11 @@ def experiment_documents(world_name: str, seed: int, source: str, quick: bool = 
     from experiments.recognition import experiment_objects
 
     world = World.paper(seed=seed, difficulty=world_name)
+    if source == LABELS:
+        words = {obj.object_id: (*obj.concepts, *obj.behaviours) for obj in world.objects}
+        return Documents(world, world.objects, words, source)
     train, test = experiment_objects(world, quick)
     objects = world.objects if not quick else tuple(obj for obj in world.objects if obj in (*train, *test))
-    if source == LABELS:
-        return Documents(world, objects, {obj.object_id: (*obj.concepts, *obj.behaviours) for obj in objects}, source)
     if source != PERCEIVED:
         raise ValueError(f"unknown document source {source!r}; known: {SOURCES}")
     key = (world_name, int(seed), quick)

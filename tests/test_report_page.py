@@ -41,7 +41,7 @@ def bench_results(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def quick_report(tmp_path_factory: pytest.TempPathFactory, bench_results: Path) -> report.ReportResult:
     root = tmp_path_factory.mktemp("report")
-    stale = root / "out" / "planning" / "seed-3" / "from_an_earlier_run.png"
+    stale = root / "out" / "planning" / "seed-7" / "from_an_earlier_run.png"
     stale.parent.mkdir(parents=True)
     stale.write_bytes(b"")
     os.utime(stale, (0, 0))
@@ -50,7 +50,7 @@ def quick_report(tmp_path_factory: pytest.TempPathFactory, bench_results: Path) 
         return report.generate_report(
             root / "out",
             quick=True,
-            seeds=[3],
+            seeds=[7],
             only=["planning", BROKEN, report.RUNNING_TIMES],
             workers=1,
             page=root / "docs" / "reproduction.md",
@@ -64,8 +64,8 @@ def test_page_links_this_runs_figures_copied_beside_it(quick_report: report.Repo
     assert links == ["reproduction/planning/planning.png"]
     assert (page.parent / links[0]).is_file()
     assert (page.parent / "reproduction" / "planning" / "median.json").is_file()
-    assert (page.parent / "reproduction" / "planning" / "seed-3.json").is_file()
-    assert (page.parent.parent / "out" / "planning" / "seed-3" / "summary.json").is_file()
+    assert (page.parent / "reproduction" / "planning" / "seed-7.json").is_file()
+    assert (page.parent.parent / "out" / "planning" / "seed-7" / "summary.json").is_file()
 
 
 def test_page_has_one_verdict_per_claim_of_the_jobs_run(quick_report: report.ReportResult) -> None:
@@ -87,7 +87,7 @@ def test_a_failed_experiment_is_reported_not_fatal(quick_report: report.ReportRe
     assert not quick_report.ok
     assert list(quick_report.failed) == [BROKEN]
     assert quick_report.failed[BROKEN].startswith("RuntimeError: simulated failure at size 3 (at test_report_page.py")
-    assert "| `broken` | 3 | " in quick_report.page.read_text(encoding="utf-8")
+    assert "| `broken` | 7 | " in quick_report.page.read_text(encoding="utf-8")
     assert [run.error for run in quick_report.jobs["planning"]] == [None]
 
 

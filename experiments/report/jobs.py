@@ -148,7 +148,8 @@ def job_specs(names: Sequence[str], seeds: Sequence[int]) -> list[JobSpec]:
             continue
         ablations = dict.fromkeys(a for claim in CLAIMS if claim.job == name for a in claim.ablations)
         specs += [JobSpec(name, ablation, seed) for ablation in (None, *ablations) for seed in seeds]
-    return specs
+    # The headline jobs first: the pool runs in submission order, and the ablations matter less.
+    return sorted(specs, key=lambda spec: spec.ablation is not None)
 
 
 def _run_spec(spec: JobSpec, out: Path, quick: bool, bench_results: Path) -> JobResult:

@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
-from experiments.report import Status
+import pytest
+
+from core.errors import InvalidInputError
+from experiments.report import RUNNING_TIMES, Status
 from experiments.report.claims import fig_13
+from experiments.report.jobs import ABLATIONS, experiment_args, job_specs
 from experiments.report.seeds import (
     judge_over_seeds,
     median_summary,
@@ -49,3 +54,20 @@ def test_tables_over_seeds_show_the_median_and_the_range_where_it_varies() -> No
     table = table_over_seeds(fig_13.CLAIMS[0], summaries)
     assert table[1][1] == "0.600"
     assert table[3][1] == "0.850 [0.800–0.900]"
+
+
+def test_jobs_run_every_seed_headline_first_with_their_claims_ablations_and_running_times_once() -> None:
+    specs = job_specs(["mixed", RUNNING_TIMES], [5, 6])
+    assert [(s.label, s.seed) for s in specs] == [
+        ("mixed", 5),
+        ("mixed", 6),
+        (RUNNING_TIMES, 5),
+        ("mixed@easy", 5),
+        ("mixed@easy", 6),
+        ("mixed@labels", 5),
+        ("mixed@labels", 6),
+    ]
+    _, args = experiment_args("mixed", Path("out"), True, 5, ABLATIONS["labels"])
+    assert (args.documents, args.world, args.seed) == ("labels", "hard", 5)
+    with pytest.raises(InvalidInputError, match="no --documents"):
+        experiment_args("raw-vs-web", Path("out"), True, 5, ABLATIONS["labels"])

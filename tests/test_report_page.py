@@ -100,3 +100,25 @@ def test_command_line_exits_non_zero_when_a_job_fails(tmp_path: Path, monkeypatc
 def test_unknown_job_names_are_refused(tmp_path: Path) -> None:
     with pytest.raises(InvalidInputError, match="only.*unknown job"):
         report.generate_report(tmp_path, only=["no-such-experiment"])
+
+
+def test_a_report_can_be_judged_again_from_the_summaries_it_stored(
+    quick_report: report.ReportResult, bench_results: Path
+) -> None:
+    """``--reuse only`` runs nothing: the stored summaries give the same verdicts; a seed never run
+    is named, and the claim is judged on the seeds that ran."""
+    out = quick_report.page.parent.parent / "out"
+    again = report.generate_report(
+        out,
+        quick=True,
+        seeds=[7, 8],
+        only=["planning", report.RUNNING_TIMES],
+        page=out.parent / "again.md",
+        bench_results=bench_results,
+        reuse="only",
+    )
+    name = "Fig. 15 — planning trees of the two canonical scenarios"
+    assert again.jobs["planning"][0].summary == quick_report.jobs["planning"][0].summary
+    assert again.jobs["planning"][1].error == "no summary stored (--reuse only)"
+    assert again.verdicts[name].status is quick_report.verdicts[name].status
+    assert again.verdicts[name].reason.endswith("(judged on seeds 7; seeds 8 did not run)")

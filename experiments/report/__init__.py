@@ -66,6 +66,7 @@ def generate_report(
     page: Path | None = None,
     bench_results: Path = BENCH_RESULTS,
     workers: int | None = None,
+    reuse: str = "none",
 ) -> ReportResult:
     """Run the jobs (every experiment at every seed with its claims' ablations, and
     :data:`RUNNING_TIMES` once; or ``only`` those) into ``out/LABEL/seed-S/`` in ``workers``
@@ -78,7 +79,7 @@ def generate_report(
     page = page or out / "report.md"
     figures_dir = page.parent / page.stem if page != out / "report.md" else out / "page"
     specs = job_specs(names, list(seeds))
-    results = ReportResult(page, run_jobs(specs, out, quick, bench_results, workers))
+    results = ReportResult(page, run_jobs(specs, out, quick, bench_results, workers, reuse))
     claims = [claim for claim in CLAIMS if claim.job in results.jobs]
     sections = []
     for claim in claims:
@@ -135,6 +136,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--workers", type=int, default=None, help="parallel processes (default: one per core)")
     parser.add_argument(
+        "--reuse",
+        choices=("none", "existing", "only"),
+        default="none",
+        help="take the summaries an earlier run left in OUT: 'existing' runs the missing jobs (resume), "
+        "'only' runs none and reports the missing ones as not run",
+    )
+    parser.add_argument(
         "--only",
         nargs="+",
         metavar="JOB",
@@ -145,7 +153,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Write the report; exit status 1 if any job failed."""
-    result = generate_report(args.out, args.quick, args.seeds, args.only, args.page, workers=args.workers)
+    result = generate_report(
+        args.out, args.quick, args.seeds, args.only, args.page, workers=args.workers, reuse=args.reuse
+    )
     for title, verdict in result.verdicts.items():
         print(f"{title}: {verdict.line()}")
     print(f"report: {result.page}")

@@ -153,7 +153,28 @@ def job_specs(names: Sequence[str], seeds: Sequence[int]) -> list[JobSpec]:
 
 
 def _run_spec(spec: JobSpec, out: Path, quick: bool, bench_results: Path) -> JobResult:
-    return run_job(spec.name, out / spec.label / f"seed-{spec.seed}", quick, spec.seed, bench_results, spec.ablation)
+    job = run_job(spec.name, out / spec.label / f"seed-{spec.seed}", quick, spec.seed, bench_results, spec.ablation)
+    if job.summary is not None:
+        (job.folder / JOB_FILE).write_text(json.dumps({"seconds": job.seconds}) + "\n", encoding="utf-8")
+    return job
+
+
+#: Beside a job's summary.json: how long it took (read back by ``reuse``).
+JOB_FILE = "job.json"
+
+
+def stored_job(spec: JobSpec, out: Path) -> JobResult | None:
+    """The job's result from an earlier run into ``out`` (its summary.json), or None."""
+    folder = out / spec.label / f"seed-{spec.seed}"
+    try:
+        summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    try:
+        seconds = float(json.loads((folder / JOB_FILE).read_text(encoding="utf-8"))["seconds"])
+    except (OSError, ValueError, KeyError, TypeError):
+        seconds = 0.0
+    return JobResult(spec.name, folder, spec.seed, spec.ablation, summary, seconds=seconds, started=0.0)
 
 
 def _world_of(spec: JobSpec) -> str:
@@ -166,7 +187,12 @@ def _perceive_world(world: str, seed: int, quick: bool) -> None:
 
 
 def run_jobs(
-    specs: Sequence[JobSpec], out: Path, quick: bool, bench_results: Path, workers: int | None = None
+    specs: Sequence[JobSpec],
+    out: Path,
+    quick: bool,
+    bench_results: Path,
+    workers: int | None = None,
+    reuse: str = "none",
 ) -> dict[str, list[JobResult]]:
     """Every job in parallel processes (``workers``, default one per core) with a progress bar;
     results by label, each label's runs in seed order. Forked workers see the registry as this
@@ -174,16 +200,26 @@ def run_jobs(
 
     Two phases: first each (world, seed) the experiments need is recorded, its features extracted
     into ``out/cache`` (``context_scenes.FEATURE_CACHE``) and perceived, once; then every job runs,
-    reading the features from there instead of extracting them again (≈ 1 s per object)."""
+    reading the features from there instead of extracting them again (≈ 1 s per object).
+
+    ``reuse``: ``"none"`` runs every job; ``"existing"`` takes the jobs whose summary an earlier run
+    left in ``out`` (:func:`stored_job`: an interrupted report resumes) and runs the others;
+    ``"only"`` runs nothing, and a job without a stored summary is not run (the page says so)."""
     workers = workers or os.cpu_count() or 1
     context_scenes.FEATURE_CACHE = out / "cache"
-    worlds = list(dict.fromkeys((_world_of(s), s.seed) for s in specs if s.name in experiments.EXPERIMENTS))
-    progress = tqdm(total=len(worlds) + len(specs), desc="report", unit="job")
+    stored = {spec: stored_job(spec, out) for spec in specs} if reuse != "none" else {}
+    outcomes: dict[str, Any] = {f"{spec.label} seed {spec.seed}": job for spec, job in stored.items() if job}
+    for spec in (spec for spec, job in stored.items() if job is None and reuse == "only"):
+        folder = out / spec.label / f"seed-{spec.seed}"
+        missing = JobResult(spec.name, folder, spec.seed, spec.ablation, error="no summary stored (--reuse only)")
+        outcomes[f"{spec.label} seed {spec.seed}"] = missing
+    specs_to_run = [spec for spec in specs if f"{spec.label} seed {spec.seed}" not in outcomes]
+    worlds = list(dict.fromkeys((_world_of(s), s.seed) for s in specs_to_run if s.name in experiments.EXPERIMENTS))
+    progress = tqdm(total=len(worlds) + len(specs_to_run), desc="report", unit="job")
     phases: list[list[tuple[str, Any, tuple[Any, ...]]]] = [
         [(f"perceive {world} seed {seed}", _perceive_world, (world, seed, quick)) for world, seed in worlds],
-        [(f"{spec.label} seed {spec.seed}", _run_spec, (spec, out, quick, bench_results)) for spec in specs],
+        [(f"{spec.label} seed {spec.seed}", _run_spec, (spec, out, quick, bench_results)) for spec in specs_to_run],
     ]
-    outcomes: dict[str, Any] = {}
     with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork")) as pool:
         for phase in phases:
             futures = {pool.submit(work, *arguments): name for name, work, arguments in phase}

@@ -8,6 +8,7 @@ import json
 import os
 import shutil
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 from experiments.report.claim import Claim, Status, Summary, Table, Verdict
@@ -22,20 +23,26 @@ def markdown_table(rows: Table) -> list[str]:
 
 
 def summaries(runs: Sequence[JobResult]) -> list[Summary] | str:
-    """Every seed's summary, or the first error (a claim is judged only when every seed ran)."""
-    failed = [run for run in runs if run.summary is None]
-    if failed:
-        return f"seed {failed[0].seed}: {failed[0].error or 'no summary'}"
-    return [run.summary for run in runs if run.summary is not None]
+    """The summaries of the seeds that ran, or the first error when none did."""
+    ran = [run.summary for run in runs if run.summary is not None]
+    if not ran:
+        return f"seed {runs[0].seed}: {runs[0].error or 'no summary'}"
+    return ran
 
 
 def evaluate(claim: Claim, runs: Sequence[JobResult]) -> tuple[SeedVerdict | None, Verdict, Table | None]:
-    """The claim over the seeds of ``runs`` (:data:`~experiments.report.seeds.RULE`) and its table."""
+    """The claim over the seeds of ``runs`` that ran (:data:`~experiments.report.seeds.RULE`) and its
+    table; the verdict names the seeds that did not run (the job table has their errors)."""
     found = summaries(runs)
     if isinstance(found, str):
         return None, Verdict(Status.NOT_RUN, found), None
     try:
-        judged = judge_over_seeds(claim, found, [run.seed for run in runs])
+        ran = [run for run in runs if run.summary is not None]
+        judged = judge_over_seeds(claim, found, [run.seed for run in ran])
+        missing = [str(run.seed) for run in runs if run.summary is None]
+        if missing:
+            note = f" (judged on seeds {', '.join(str(r.seed) for r in ran)}; seeds {', '.join(missing)} did not run)"
+            judged = replace(judged, verdict=replace(judged.verdict, reason=judged.verdict.reason + note))
         return judged, judged.verdict, table_over_seeds(claim, found)
     except (KeyError, IndexError, TypeError, ValueError) as exception:
         return None, Verdict(Status.NOT_RUN, f"the {claim.job} summary cannot be judged: {error_text(exception)}"), None
@@ -84,7 +91,7 @@ def publish(label: str, runs: Sequence[JobResult], figures_dir: Path) -> tuple[l
     for run in ran:
         (target / f"seed-{run.seed}.json").write_text(json.dumps(run.summary, indent=2) + "\n", encoding="utf-8")
     median = None
-    if ran and len(ran) == len(runs):
+    if ran:
         median = target / "median.json"
         median.write_text(json.dumps(median_summary([run.summary for run in ran]), indent=2) + "\n", encoding="utf-8")
     return pngs, median
@@ -113,7 +120,10 @@ def claim_section(
     if judged is not None:
         lines.append(
             "- *Per seed:* "
-            + "; ".join(f"{run.seed}: {v.status.value}" for run, v in zip(runs, judged.per_seed, strict=True))
+            + "; ".join(
+                f"{run.seed}: {v.status.value}"
+                for run, v in zip([r for r in runs if r.summary is not None], judged.per_seed, strict=True)
+            )
         )
     for ablation, ablated in result.ablation_verdicts.get(claim.name, {}).items():
         lines.append(f"- *Ablation `{ablation}`:* {ablated.line()}")

@@ -63,7 +63,7 @@ def judge_curves(summary: Summary) -> Verdict:
         reasons.append(
             "minimum H̃ at "
             + ", ".join(
-                f"K = {argmin[n]} (|D| = {n}: {curves[n]['entropy']['mean'][argmin[n] - 1]:.3f} vs "
+                f"K = {argmin[n]:g} (|D| = {n}: {curves[n]['entropy']['mean'][int(argmin[n]) - 1]:.3f} vs "
                 f"{curves[n]['entropy']['mean'][at_k]:.3f} nats at K = {PAPER_CONTEXTS})"
                 if argmin[n] != PAPER_CONTEXTS
                 else f"K = {argmin[n]} (|D| = {n})"

@@ -6,10 +6,12 @@
   use the same objects.
 - **The context model** (:func:`train_context_model`) is Incremental-LDA learned
   in batch from pure-context scenes of the *training* objects (§V: a context
-  drawn uniformly, 3–5 of its objects), each object adding its labelled noun,
-  adjectives and applicable verbs (``Scene.tokens``): the robot learns contexts
-  from scenes of objects it was taught, and the test objects stay unseen. K is
-  found by the model (its default birth-move rule).
+  drawn uniformly, 3–5 of its objects), each object adding the active concepts
+  of its perceived web (the paper's protocol, ``experiments.documents``; with
+  ``--documents labels`` its labelled noun, adjectives and applicable verbs,
+  ``Scene.tokens``): the robot learns contexts from scenes of objects it was
+  taught, and the test objects stay unseen. K is found by the model (its
+  default birth-move rule).
 - **Test scenes** (:func:`pure_context_scenes`): the test objects grouped by the
   context of their noun, shuffled, and cut into scenes of at most 5 objects of
   balanced sizes (7 objects give 4 + 3). Every test object is in exactly one
@@ -20,7 +22,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -37,6 +41,10 @@ MAX_OBJECTS_PER_SCENE = 5
 
 Features = tuple[np.ndarray, dict[str, np.ndarray]]
 _FEATURES: dict[tuple[str, str, int, int, str], Features] = {}
+#: A folder where features are also kept on disk, one ``.npz`` per object (None: in memory only).
+#: The report sets it so that its processes share one extraction per (world, seed); a file holds
+#: the very float64 arrays extracted, so a cached run is bit for bit an uncached one.
+FEATURE_CACHE: Path | None = None
 
 
 def object_features(world: World, objects: Sequence[WorldObject], seed: int) -> dict[str, Features]:
@@ -46,18 +54,61 @@ def object_features(world: World, objects: Sequence[WorldObject], seed: int) -> 
     depends on nothing else (``World.recordings`` gives every object its own stream).
     """
     prefix = (world.config.name, world.config.difficulty.name, world.seed, int(seed))
+    for obj in objects:
+        if (*prefix, obj.object_id) not in _FEATURES and (found := _cached(prefix, obj.object_id)) is not None:
+            _FEATURES[(*prefix, obj.object_id)] = found
     missing = [obj for obj in objects if (*prefix, obj.object_id) not in _FEATURES]
     for object_id, recording in world.recordings(missing, seed=seed).items() if missing else ():
         _FEATURES[(*prefix, object_id)] = recording_features(recording)
+        _store(prefix, object_id, _FEATURES[(*prefix, object_id)])
     return {obj.object_id: _FEATURES[(*prefix, obj.object_id)] for obj in objects}
 
 
+def _cache_file(prefix: tuple[str, str, int, int], object_id: str) -> Path | None:
+    if FEATURE_CACHE is None:
+        return None
+    name, difficulty, world_seed, seed = prefix
+    return FEATURE_CACHE / f"{name}-{difficulty}-world{world_seed}-seed{seed}" / f"{object_id}.npz"
+
+
+def _cached(prefix: tuple[str, str, int, int], object_id: str) -> Features | None:
+    path = _cache_file(prefix, object_id)
+    if path is None or not path.is_file():
+        return None
+    with np.load(path) as data:
+        effects = {key.removeprefix("effect_"): data[key] for key in data.files if key.startswith("effect_")}
+        return data["entity"], effects
+
+
+def _store(prefix: tuple[str, str, int, int], object_id: str, features: Features) -> None:
+    """Write atomically (a temporary file renamed): processes may extract the same object at once."""
+    path = _cache_file(prefix, object_id)
+    if path is None:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    entity, effects = features
+    partial = path.with_suffix(f".{os.getpid()}.tmp.npz")
+    np.savez(partial, entity=entity, **{f"effect_{verb}": effect for verb, effect in effects.items()})
+    partial.replace(path)
+
+
 def train_context_model(
-    world: World, train: Sequence[WorldObject], rng: np.random.Generator, n_scenes: int = TRAINING_SCENES
+    world: World,
+    train: Sequence[WorldObject],
+    rng: np.random.Generator,
+    n_scenes: int = TRAINING_SCENES,
+    words: Mapping[str, Sequence[str]] | None = None,
 ) -> IncrementalLDA:
-    """Incremental-LDA fitted on ``n_scenes`` pure-context scenes of the training objects."""
+    """Incremental-LDA fitted on ``n_scenes`` pure-context scenes of the training objects, each object
+    giving its ``words`` (the active concepts of its perceived web, ``experiments.documents``), or
+    with ``words=None`` its labels (``Scene.tokens``)."""
     scenes = world.scenes(n_scenes, seed=rng, objects=train)
-    return IncrementalLDA(seed=int(rng.integers(2**31))).fit([scene.tokens(with_verbs=True) for scene in scenes])
+    documents = (
+        [scene.tokens(with_verbs=True) for scene in scenes]
+        if words is None
+        else [[word for obj in scene.objects for word in words[obj.object_id]] for scene in scenes]
+    )
+    return IncrementalLDA(seed=int(rng.integers(2**31))).fit(documents)
 
 
 def context_of(world: World, obj: WorldObject) -> str:

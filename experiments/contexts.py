@@ -1,9 +1,11 @@
 """Fig. 11: uncertain concepts |C_low| and entropy H̃ against K and the number of scenes; where growth stops.
 
 Protocol (§V-A). For each of ``--test-sets`` test sets and each number of scenes
-|D| in ``--scene-counts``, pure scenes of the paper's world (a context drawn
-uniformly, 3–5 of its objects, each giving its noun, adjectives and applicable
-verbs) are learned with K forced from 1 to ``--max-k`` as the paper does: K = 1,
+|D| in ``--scene-counts``, pure scenes of the paper's world (``--world``, one
+world per ``--seed``; a context drawn uniformly, 3–5 of its objects, each giving
+the active concepts of its perceived concept web, ``experiments.documents``; with
+``--documents labels`` its true noun, adjectives and applicable verbs) are
+learned with K forced from 1 to ``--max-k`` as the paper does: K = 1,
 then repeatedly Algorithm 3's start (C_low tokens to the new context, others with
 probability δ) followed by the model's Gibbs sweeps. After each K the run
 records |C_low| (concepts with max_χ P(c|χ) < τ) and H̃ (Eq. 8, ρ = 0.25).
@@ -17,7 +19,9 @@ sets that hold every context (world ``paper-all``: one scene of each context,
 the others drawn as usual, shuffled) ask the paper's question literally, "does
 growth stop at K = 3 from 3 scenes", for |D| of 3 to 10. The same comparison
 runs on generic worlds of 2, 4 and 5 contexts (``WorldConfig.generic``) with
-``--generic-scenes`` scenes each.
+``--generic-scenes`` scenes each; their documents are labels (perceiving a new
+world per test set would cost a minute each): they test the K rule beyond three
+contexts, not perception.
 
 Outputs: fig11.csv (|D|, test set, K, |C_low|, H̃), stop_k.csv (world, |D|,
 test set, rule, contexts present, K found), fig11.png (panels a–d of Fig. 11).
@@ -34,7 +38,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from core.context import IncrementalLDA
+from experiments import documents
 from experiments.baselines.likelihood_rule import likelihood_model
+from experiments.documents import Documents
 from sim.world import WorldConfig, generate_scenes
 
 RULES = ("scenes", "likelihood", "paper")
@@ -51,22 +57,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scene-counts", type=str, default=None, help="comma-separated |D| values")
     parser.add_argument("--generic-scenes", type=int, default=None, help="scenes per generic world (100; --quick: 30)")
     parser.add_argument("--tau", type=float, default=None, help="τ of C_low (default: the model's)")
+    documents.add_arguments(parser)
 
 
-def _tokens(config: WorldConfig, n_scenes: int, seed: int) -> tuple[list[list[str]], int]:
+def _tokens(docs: Documents, n_scenes: int, seed: int) -> tuple[list[list[str]], int]:
+    scenes = docs.scenes(n_scenes, seed)
+    present = len({context for scene in scenes for context in scene.object_contexts})
+    return [docs.scene(scene) for scene in scenes], present
+
+
+def _generic_tokens(config: WorldConfig, n_scenes: int, seed: int) -> tuple[list[list[str]], int]:
     scenes = generate_scenes(config, n_scenes, seed)
     present = len({context for scene in scenes for context in scene.object_contexts})
     return [scene.tokens() for scene in scenes], present
 
 
-def _tokens_with_every_context(config: WorldConfig, n_scenes: int, seed: int) -> list[list[str]]:
+def _tokens_with_every_context(docs: Documents, n_scenes: int, seed: int) -> list[list[str]]:
     """``n_scenes`` (≥ the number of contexts) scenes holding every context: one scene of each,
     the others drawn as usual, in a seeded random order."""
-    names = [context.name for context in config.contexts]
-    scenes = [generate_scenes(config, 1, seed * 100 + i, contexts=[name])[0] for i, name in enumerate(names)]
-    scenes += generate_scenes(config, n_scenes - len(names), seed)
+    names = [context.name for context in docs.world.config.contexts]
+    scenes = [docs.scenes(1, seed * 100 + i, contexts=[name])[0] for i, name in enumerate(names)]
+    scenes += docs.scenes(n_scenes - len(names), seed)
     order = np.random.default_rng(seed).permutation(len(scenes))
-    return [scenes[i].tokens() for i in order]
+    return [docs.scene(scenes[i]) for i in order]
 
 
 def forced_growth(scenes: list[list[str]], max_k: int, seed: int, tau: float | None) -> list[tuple[int, float]]:
@@ -101,13 +114,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     max_k = 3 if args.quick else args.max_k
     generic_scenes = args.generic_scenes or (30 if args.quick else 100)
     generic_contexts = GENERIC_CONTEXTS[:1] if args.quick else GENERIC_CONTEXTS
-    paper = WorldConfig.paper()
+    docs = documents.experiment_documents(args.world, args.seed, args.documents, args.quick)
+    paper = docs.world.config
 
     curves, stops = [], []
     for n_scenes in counts:
         for test_set in range(test_sets):
             seed = args.seed * 1000 + test_set
-            scenes, present = _tokens(paper, n_scenes, seed)
+            scenes, present = _tokens(docs, n_scenes, seed)
             for k, (low, entropy) in enumerate(forced_growth(scenes, max_k, seed, args.tau), start=1):
                 curves.append({"scenes": n_scenes, "test_set": test_set, "k": k, "c_low": low, "entropy": entropy})
             for rule in RULES:
@@ -125,7 +139,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     for n_scenes in (n for n in counts if len(paper.contexts) <= n <= EVERY_CONTEXT_MAX_SCENES):
         for test_set in range(test_sets):
             seed = args.seed * 1000 + test_set
-            scenes = _tokens_with_every_context(paper, n_scenes, seed)
+            scenes = _tokens_with_every_context(docs, n_scenes, seed)
             for rule in RULES:
                 stops.append(
                     {
@@ -140,7 +154,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     for n_contexts in generic_contexts:
         for test_set in range(test_sets):
             seed = args.seed * 1000 + test_set
-            scenes, present = _tokens(WorldConfig.generic(n_contexts, seed), generic_scenes, seed)
+            scenes, present = _generic_tokens(WorldConfig.generic(n_contexts, seed), generic_scenes, seed)
             for rule in RULES:
                 found = stopping_k(scenes, seed, rule, args.tau)
                 stops.append(
@@ -157,7 +171,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     _write_csv(args.out / "fig11.csv", curves)
     _write_csv(args.out / "stop_k.csv", stops)
     _plot(args.out / "fig11.png", curves, counts, max_k)
-    return _summary(curves, stops, counts, max_k)
+    return {**_summary(curves, stops, counts, max_k), "world": args.world, "documents": args.documents}
 
 
 def _summary(curves: list[dict], stops: list[dict], counts: tuple[int, ...], max_k: int) -> dict[str, Any]:

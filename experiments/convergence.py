@@ -1,7 +1,9 @@
 """Fig. 10: entropy H̃ per Gibbs sweep, K-incremental from a K = 2 solution vs batch Gibbs with K = 3.
 
 Protocol (§V-A). Each of ``--test-sets`` test sets holds ``--scenes`` pure scenes
-of the paper's world (100 in the paper). The K = 2 solution is Algorithm 1 with
+of the paper's world (100 in the paper; ``--world``, each object giving the
+active concepts of its perceived web, ``experiments.documents``, or its labels
+with ``--documents labels``). The K = 2 solution is Algorithm 1 with
 K = 2 and the model's ``sweeps`` sweeps; every K-incremental solver starts from
 it, opens the third context by Algorithm 3 and runs Gibbs sweeps. They differ in
 the tokens that seed the new context and in what follows:
@@ -54,7 +56,7 @@ from scipy.optimize import linear_sum_assignment
 from core.context import IncrementalLDA, low_confidence_concepts
 from core.context.k_selection import PAPER_TAU
 from core.errors import InvalidInputError
-from sim.world import WorldConfig, generate_scenes
+from experiments import documents
 
 SOLVERS = (
     "k_incremental_c_low",
@@ -85,6 +87,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--window", type=int, default=10, help="sweeps averaged by the convergence rule")
     parser.add_argument("--split-scans", type=int, default=3, help="restricted blocked scans of the split starts")
+    documents.add_arguments(parser)
 
 
 def scene_accuracy(model: IncrementalLDA, truth: np.ndarray) -> float:
@@ -172,7 +175,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     n_scenes = args.scenes or (30 if args.quick else 100)
     sweeps = args.sweeps or (60 if args.quick else 300)
     tail = args.tail or (20 if args.quick else 50)
-    paper = WorldConfig.paper()
+    docs = documents.experiment_documents(args.world, args.seed, args.documents, args.quick)
     names = (*SOLVERS, CONTROL)
     traces: dict[str, list[list[float]]] = {name: [] for name in names}
     accuracies: dict[str, list[list[float]]] = {name: [] for name in names}
@@ -180,9 +183,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     converged: dict[str, dict[str, list[int | None]]] = {rule: {name: [] for name in names} for rule in rules}
     for test_set in range(test_sets):
         seed = args.seed * 1000 + test_set
-        generated = generate_scenes(paper, n_scenes, seed)
+        generated = docs.scenes(n_scenes, seed)
         truth = np.unique([_main_context(scene.object_contexts) for scene in generated], return_inverse=True)[1]
-        runs, accuracy = run_test_set([scene.tokens() for scene in generated], truth, seed, sweeps, args.split_scans)
+        runs, accuracy = run_test_set([docs.scene(scene) for scene in generated], truth, seed, sweeps, args.split_scans)
         for name in names:
             traces[name].append(runs[name])
             accuracies[name].append(accuracy[name])
@@ -194,6 +197,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     _plot(args.out / "convergence.png", {solver: traces[solver] for solver in SOLVERS})
     checkpoints = [s for s in (3, 5, 10, 20, 50) if s <= sweeps]
     return {
+        "world": args.world,
+        "documents": args.documents,
         "scenes": n_scenes,
         "window": args.window,
         "split_scans": args.split_scans,

@@ -1,7 +1,9 @@
 """Table VI: predicted context proportions of three pure and three mixed scenes.
 
 Protocol (§V-A). Incremental-LDA (default rule, K found by the model) learns
-``--training-scenes`` random pure scenes of the paper's world. The discovered
+``--training-scenes`` random pure scenes of the paper's world (``--world``; each
+object gives the active concepts of its perceived web, ``experiments.documents``,
+or with ``--documents labels`` its labels). The discovered
 contexts are then named: each training scene votes, with its most probable
 context, for its true context, and each discovered context takes the name
 receiving most of its votes (a context no training scene prefers stays
@@ -12,8 +14,9 @@ unchanged), and its posterior θ is summed per name. This is repeated for
 ``--repeats`` training sets; the table reports mean ± std.
 
 The true proportions are the paper's, by objects (2 of 3 objects from the
-Playroom: 66 %). LDA sees tokens, and objects differ in their number of verb
-tokens (a cup brings 5 verbs, a box 13), so the token shares are listed too.
+Playroom: 66 %). LDA sees tokens, and objects differ in their number of
+tokens (with labels a cup brings 5 verbs, a box 13), so the token shares of the
+documents are listed too.
 
 Outputs: table_vi.csv (scene, context, true by objects, true by tokens, paper,
 ours mean and std), table_vi.png.
@@ -30,7 +33,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from core.context import IncrementalLDA
-from sim.world import Scene, WorldConfig, generate_scenes, scene_from_nouns, table_vi_scenes
+from experiments import documents
+from experiments.documents import Documents
+from sim.world import Scene, table_vi_scenes
 
 UNNAMED = "unnamed"
 
@@ -38,6 +43,7 @@ UNNAMED = "unnamed"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--training-scenes", type=int, default=None, help="pure training scenes (50; --quick: 20)")
     parser.add_argument("--repeats", type=int, default=None, help="training sets (10; --quick: 2)")
+    documents.add_arguments(parser)
 
 
 def context_names(model: IncrementalLDA, training: tuple[Scene, ...]) -> list[str]:
@@ -50,11 +56,11 @@ def context_names(model: IncrementalLDA, training: tuple[Scene, ...]) -> list[st
     return [max(v, key=v.__getitem__) if v else UNNAMED for v in votes]
 
 
-def token_shares(scene: Scene, with_verbs: bool = True) -> dict[str, float]:
-    """Each true context's share of the scene's tokens."""
+def token_shares(scene: Scene, docs: Documents) -> dict[str, float]:
+    """Each true context's share of the scene's document tokens."""
     counts: dict[str, int] = {}
     for obj, context in zip(scene.objects, scene.object_contexts, strict=True):
-        counts[context] = counts.get(context, 0) + len(obj.concepts) + (len(obj.behaviours) if with_verbs else 0)
+        counts[context] = counts.get(context, 0) + len(docs.words[obj.object_id])
     total = sum(counts.values())
     return {context: count / total for context, count in counts.items()}
 
@@ -62,7 +68,8 @@ def token_shares(scene: Scene, with_verbs: bool = True) -> dict[str, float]:
 def run(args: argparse.Namespace) -> dict[str, Any]:
     n_training = args.training_scenes or (20 if args.quick else 50)
     repeats = args.repeats or (2 if args.quick else 10)
-    config = WorldConfig.paper()
+    docs = documents.experiment_documents(args.world, args.seed, args.documents, args.quick)
+    config = docs.world.config
     specs = table_vi_scenes()
     names = [context.name for context in config.contexts]
     predicted = {spec.name: {name: [] for name in [*names, UNNAMED]} for spec in specs}
@@ -70,19 +77,19 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     found_k = []
     for repeat in range(repeats):
         seed = args.seed * 1000 + repeat
-        training = generate_scenes(config, n_training, seed)
-        model = IncrementalLDA(seed=seed).fit([scene.tokens() for scene in training])
+        training = docs.scenes(n_training, seed)
+        model = IncrementalLDA(seed=seed).fit([docs.scene(scene) for scene in training])
         found_k.append(model.n_contexts)
         labels = context_names(model, training)
         for spec in specs:
-            scene = scene_from_nouns(config, spec, seed)
-            theta = model.infer_scene(scene.tokens(), seed=seed)
+            scene = docs.scene_from_nouns(spec, seed)
+            theta = model.infer_scene(docs.scene(scene), seed=seed)
             for name in predicted[spec.name]:
                 predicted[spec.name][name].append(
                     float(sum(p for p, label in zip(theta, labels, strict=True) if label == name))
                 )
             for name in names:
-                shares[spec.name][name].append(token_shares(scene).get(name, 0.0))
+                shares[spec.name][name].append(token_shares(scene, docs).get(name, 0.0))
     rows = [
         {
             "scene": spec.name,
@@ -99,7 +106,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     ]
     _write_csv(args.out / "table_vi.csv", rows)
     _plot(args.out / "table_vi.png", rows)
-    return _summary(rows, specs, found_k, n_training)
+    return {**_summary(rows, specs, found_k, n_training), "world": args.world, "documents": args.documents}
 
 
 def _summary(rows: list[dict[str, Any]], specs: tuple, found_k: list[int], n_training: int) -> dict[str, Any]:

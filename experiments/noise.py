@@ -30,7 +30,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from core.vocabulary import Vocabulary
-from experiments import context_scenes, recognition
+from experiments import context_scenes, documents, recognition
 from experiments.sigma import ContextExperiment, prepare
 
 NOISE_LEVELS = tuple(round(0.1 * i, 1) for i in range(1, 10))
@@ -75,10 +75,11 @@ def reverse_perceptions(
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trials", type=int, default=None, help=f"trials per noise level (default {TRIALS}, --quick {QUICK_TRIALS})")  # fmt: skip
+    documents.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    experiment = prepare(args.seed, args.quick)
+    experiment = prepare(args.seed, args.quick, None, args.world, args.documents)
     trials = args.trials or (QUICK_TRIALS if args.quick else TRIALS)
     noise_levels, sigmas = (QUICK_NOISE_LEVELS, QUICK_SIGMAS) if args.quick else (NOISE_LEVELS, SIGMAS)
     accuracy = accuracy_grid(experiment, noise_levels, sigmas, trials, args.seed)

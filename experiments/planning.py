@@ -5,7 +5,10 @@ Protocol:
 1. Effects: the paper world's training objects are recorded (sim.world) and
    their effect vectors f extracted (core.features.recording_features); each
    behaviour's effect on position is learned from them (core.planning.learn_effects).
-2. Pruning: P(verb | context) is learned from scenes of the paper world and
+2. Pruning: P(verb | context) is learned from scenes of the paper world
+   (``--world``; each object gives the active concepts of its perceived web,
+   ``experiments.documents``, verbs included, or its labels with
+   ``--documents labels``) and
    each context keeps the behaviours the pruning rule keeps. With
    ``--pruning-source context_model`` (default) it is the verb part of the
    context model's P(concept | context) (collapsed-Gibbs LDA, core.context,
@@ -38,7 +41,6 @@ from scipy.optimize import linear_sum_assignment
 
 from core.context.lda import LDAState
 from core.errors import InvalidInputError
-from core.features import recording_features
 from core.planning import (
     MODES,
     PRUNING_THRESHOLD,
@@ -50,6 +52,8 @@ from core.planning import (
     verb_given_context_from_model,
     verb_given_context_from_scenes,
 )
+from experiments import context_scenes, documents
+from experiments.documents import Documents
 from sim.world import World
 
 SCENARIOS = 10_000
@@ -104,6 +108,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="context_model",
         help="where P(verb | context) is learned from",
     )
+    documents.add_arguments(parser)
 
 
 def learned_effects(
@@ -116,17 +121,18 @@ def learned_effects(
             obj for noun in world.vocabulary.nouns for obj in [o for o in objects if o.noun == noun][:objects_per_noun]
         )
     vectors, behaviours = [], []
-    for recording in world.recordings(objects, seed=seed).values():
-        for behaviour, effect in recording_features(recording)[1].items():
+    for _, effects in context_scenes.object_features(world, objects, seed).values():
+        for behaviour, effect in effects.items():
             vectors.append(effect)
             behaviours.append(behaviour)
     return learn_effects(np.array(vectors), behaviours, workspace)
 
 
-def learned_verb_given_context(world: World, n_scenes: int, seed: int, source: str) -> dict[str, dict[str, float]]:
+def learned_verb_given_context(docs: Documents, n_scenes: int, seed: int, source: str) -> dict[str, dict[str, float]]:
     """P(verb | context) learned from ``n_scenes`` pure scenes of the world (module docstring, step 2)."""
-    scenes = world.scenes(n_scenes, seed=seed)
-    tokens = [scene.tokens(with_verbs=True) for scene in scenes]
+    world = docs.world
+    scenes = docs.scenes(n_scenes, seed)
+    tokens = [docs.scene(scene) for scene in scenes]
     labels = [scene.object_contexts[0] for scene in scenes]
     verbs = list(world.vocabulary.verbs)
     if source == "scenes":
@@ -149,11 +155,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     n_scenarios = args.scenarios if args.scenarios is not None else (QUICK_SCENARIOS if args.quick else SCENARIOS)
     if n_scenarios < 1:
         raise InvalidInputError("scenarios", f"must be at least 1, got {n_scenarios}")
-    world = World.paper(args.seed)
+    docs = documents.experiment_documents(args.world, args.seed, args.documents, args.quick)
+    world = docs.world
     effects = learned_effects(
         world, Workspace(cell_size=args.cell_size), args.seed, QUICK_OBJECTS_PER_NOUN if args.quick else None
     )
-    verb_given_context = learned_verb_given_context(world, TRAINING_SCENES, args.seed, args.pruning_source)
+    verb_given_context = learned_verb_given_context(docs, TRAINING_SCENES, args.seed, args.pruning_source)
     kept = {
         context: [b for b in effects.behaviours if b in prune_behaviours(p, args.threshold).kept]
         for context, p in sorted(verb_given_context.items())

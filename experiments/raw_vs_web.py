@@ -10,14 +10,16 @@ Protocol:
      bins per feature, each feature's range (its minimum to its maximum over all
      the objects) cut into b equal widths (a constant feature falls in bin 0);
      the object adds the 91 tokens "feature_i=bin_j";
-   - **concept web**: the object is perceived (prototypes) and its web settled;
-     it adds its MAP active noun and adjectives (Table V). These are the
-     concepts of the entity, which is all the raw side sees (its e has no effect
-     features), so both inputs describe the same thing. The web's active verbs
-     are the input ``concept_web_with_verbs``, for comparison: verbs such as
-     grasp and the moves apply in every context and outnumber the noun, so they
-     dilute the contextual signal (measured: 0.34 vs 0.61 at 3 scenes, 0.75 vs
-     0.89 at 20).
+   - **concept web** (the paper's): the object is perceived (prototypes) and its
+     web settled; it adds its active concepts by Table V's rule, verbs included
+     (``experiments.documents.perceived_words``, the LDA document of every
+     experiment), as the paper's documents do. ``concept_web_entity`` keeps only
+     the active noun and adjectives (the concepts of the entity, all the raw
+     side sees: its e has no effect features), for comparison; it was the
+     headline before issue 15.
+   The raw side is swept over bin counts (2, 5, 10, 20, 50): the paper says raw
+   features work only with coarse bins (≤ 10) and fall to chance otherwise; the
+   sweep measures it rather than assuming it.
 3. For every number of scenes (1, 3, 5, 10, 20, 50) and trial: that many pure
    training scenes (§V: a random context, 3–5 of its objects, over all the
    world's objects) and 30 evaluation scenes are drawn. Collapsed-Gibbs LDA with
@@ -54,8 +56,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from core.context import LDAState
-from core.prototypes import perceive
-from experiments import context_scenes
+from core.scene import Perception
+from experiments import context_scenes, documents
 from experiments.recognition import RecognitionSetup
 from experiments.sigma import fitted_setup
 from sim.world import Scene, World, WorldObject
@@ -136,10 +138,11 @@ def context_score(
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trials", type=int, default=None, help=f"trials per setting (default {TRIALS}, --quick {QUICK_TRIALS})")  # fmt: skip
+    documents.add_world_argument(parser)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    setup, features = fitted_setup(args.seed, args.quick)
+    setup, features = fitted_setup(args.seed, args.quick, args.world, documents.LABELS)
     objects = setup.train + setup.test
     scene_counts, bin_counts, priors = (
         (QUICK_SCENE_COUNTS, QUICK_BIN_COUNTS, QUICK_PRIORS) if args.quick else (SCENE_COUNTS, BIN_COUNTS, PRIORS)
@@ -197,18 +200,17 @@ class _Comparison:
 
 
 def _web_corpora(setup: RecognitionSetup, features: dict[str, context_scenes.Features]) -> dict[str, Corpus]:
-    """Each object's MAP active concepts in its concept web, settled on its perception: its noun
-    and adjectives (``concept_web``), and with its active verbs too (``concept_web_with_verbs``)."""
+    """Each object's active concepts (Table V) in its concept web settled on its perception, verbs
+    included (``concept_web``, the experiments' documents), and its active noun and adjectives only
+    (``concept_web_entity``)."""
     objects = setup.train + setup.test
     vocabulary = setup.vocabulary
-    perception = np.array([perceive(setup.prototypes, *features[obj.object_id]) for obj in objects])
-    applied = np.array([[verb in features[obj.object_id][1] for verb in vocabulary.verbs] for obj in objects])
-    webs = setup.web.infer_many(perception, applied=applied)
-    active = {obj.object_id: np.flatnonzero(web.map_configuration) for obj, web in zip(objects, webs, strict=True)}
+    words = documents.perceived_words(Perception(vocabulary, setup.prototypes, setup.web), objects, features)
+    active = {key: np.array([vocabulary.index(word) for word in names], dtype=np.int64) for key, names in words.items()}
     entity_concepts = len(vocabulary.nouns) + len(vocabulary.adjectives)
     return {
-        "concept_web": Corpus({key: words[words < entity_concepts] for key, words in active.items()}, len(vocabulary)),
-        "concept_web_with_verbs": Corpus(active, len(vocabulary)),
+        "concept_web": Corpus(active, len(vocabulary)),
+        "concept_web_entity": Corpus({key: ids[ids < entity_concepts] for key, ids in active.items()}, len(vocabulary)),
     }
 
 

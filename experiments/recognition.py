@@ -16,7 +16,9 @@ Protocol:
    (§IV-D, Fig. 13's third column) places each test object in a pure-context
    scene with other test objects of its context and takes P*(c) of Eq. 6 from
    the context feedback loop, with a context model learned from scenes of the
-   training objects (experiments.context_scenes gives the protocol).
+   training objects whose documents are the active concepts of their perceived
+   webs (``--documents perceived``, the paper's; ``labels`` for the ablation;
+   experiments.context_scenes and experiments.documents give the protocol).
 5. Noun accuracy of an object = its most probable noun is right (0 or 1);
    adjective accuracy = the fraction of its 5 pairs whose more probable
    adjective is right; overall = the fraction of its 6 noun + adjective
@@ -46,13 +48,13 @@ import numpy as np
 
 from core.concept_web import ConceptWeb
 from core.context.feedback import PAPER_POOLING
-from core.features import recording_features
 from core.prototypes import PrototypeSet, fit_prototypes, perceive
 from core.prototypes.prototypes import IRRELEVANT
 from core.prototypes.prototypes import METHODS as PROTOTYPE_METHODS
+from core.scene import Perception
 from core.vocabulary import Vocabulary
-from experiments import context_scenes
-from sim.world import DEFAULT_WORLD, WORLDS, World, WorldObject
+from experiments import context_scenes, documents
+from sim.world import World, WorldObject
 
 #: Random stream of the in-context method's context model and scenes, derived from the world seed.
 _IN_CONTEXT_STREAM = 7
@@ -81,6 +83,8 @@ class RecognitionSetup:
     web: ConceptWeb
     perception: np.ndarray
     applied: np.ndarray
+    #: The training objects' LDA words for the context model (None: their labels, ``Scene.tokens``).
+    train_words: dict[str, tuple[str, ...]] | None = None
 
 
 #: A method maps the setup to (n_test, n_concepts) probabilities in vocabulary.concepts order.
@@ -99,7 +103,7 @@ def concept_web(setup: RecognitionSetup) -> np.ndarray:
 def in_context(setup: RecognitionSetup, pooling: str = PAPER_POOLING) -> np.ndarray:
     """P*(c) of Eq. 6 of every test object, interpreted in a pure-context scene (core.context.feedback)."""
     rng = np.random.default_rng([setup.world.seed, _IN_CONTEXT_STREAM])
-    model = context_scenes.train_context_model(setup.world, setup.train, rng)
+    model = context_scenes.train_context_model(setup.world, setup.train, rng, words=setup.train_words)
     scenes = context_scenes.pure_context_scenes(setup.world, setup.test, rng)
     eq_6, _ = context_scenes.in_context_probabilities(
         setup.web, model, setup.vocabulary, setup.perception, setup.applied, scenes, pooling=pooling
@@ -142,25 +146,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="rgng",
         help="how features are clustered into + - * 0 (RGNG as in the paper, or k-means)",
     )
-    parser.add_argument(
-        "--world", choices=WORLDS, default=DEFAULT_WORLD, help="difficulty of the paper world (docs/world.md)"
-    )
+    documents.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     world = World.paper(seed=args.seed, difficulty=args.world)
     train, test = experiment_objects(world, args.quick)
-    features = {
-        object_id: recording_features(recording)
-        for object_id, recording in world.recordings(train + test, seed=args.seed).items()
-    }
+    features = context_scenes.object_features(world, train + test, args.seed)
     training = training_data(train, features)
     prototypes = {
         method: fit_prototypes(world.vocabulary, *training, method=method, seed=args.seed)
         for method in PROTOTYPE_METHODS
     }
     chosen = getattr(args, "prototypes", "rgng")
-    setup = make_setup(world, train, test, features, prototypes[chosen])
+    setup = make_setup(world, train, test, features, prototypes[chosen], args.documents)
     probabilities = {name: method(setup) for name, method in METHODS.items()}
     rows = [
         accuracy_row(setup.vocabulary, obj, name, p[i])
@@ -176,7 +175,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     (args.out / "prototypes.txt").write_text(prototypes[chosen].table() + "\n", encoding="utf-8")
     summary: dict[str, Any] = {name: _mean_accuracies(rows, name) for name in METHODS}
     other = next(method for method in PROTOTYPE_METHODS if method != chosen)
-    kmeans_setup = make_setup(world, train, test, features, prototypes[other])
+    kmeans_setup = make_setup(world, train, test, features, prototypes[other], documents.LABELS)
     summary.update(
         n_test_objects=len(test),
         n_train_objects=len(train),
@@ -194,7 +193,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         },
         examples=[obj.object_id for obj in examples],
         world=args.world,
+        documents=args.documents,
         noun_confidence=_noun_confidences(rows),
+        noun_changes=_noun_changes(rows),
         paper=PAPER,
     )
     return summary
@@ -206,13 +207,20 @@ def make_setup(
     test: tuple[WorldObject, ...],
     features: dict[str, tuple[np.ndarray, dict[str, np.ndarray]]],
     prototypes: PrototypeSet,
+    source: str = documents.DEFAULT_SOURCE,
 ) -> RecognitionSetup:
-    """Fit the concept web on the training configurations and perceive every test object."""
+    """Fit the concept web on the training configurations, perceive every test object, and take the
+    training objects' LDA words from ``source`` (``experiments.documents``)."""
     vocabulary = world.vocabulary
     web = ConceptWeb.fit(vocabulary, [[*obj.concepts, *obj.behaviours] for obj in train])
     perception = np.array([perceive(prototypes, *features[obj.object_id]) for obj in test])
     applied = np.array([[verb in features[obj.object_id][1] for verb in vocabulary.verbs] for obj in test])
-    return RecognitionSetup(world, vocabulary, train, test, prototypes, web, perception, applied)
+    train_words = (
+        documents.perceived_words(Perception(vocabulary, prototypes, web), train, features)
+        if source == documents.PERCEIVED
+        else None
+    )
+    return RecognitionSetup(world, vocabulary, train, test, prototypes, web, perception, applied, train_words)
 
 
 def experiment_objects(world: World, quick: bool) -> tuple[tuple[WorldObject, ...], tuple[WorldObject, ...]]:
@@ -286,6 +294,21 @@ def _noun_confidences(rows: list[dict[str, Any]]) -> dict[str, dict[str, float]]
             "mean_true_noun": float(np.mean([row["true_noun_confidence"] for row in chosen])),
         }
     return out
+
+
+def _noun_changes(rows: list[dict[str, Any]]) -> dict[str, dict[str, int]]:
+    """Per method, against perception alone: test objects whose noun it corrects (perception wrong,
+    the method right) and breaks (perception right, the method wrong) — Table VII's rows."""
+    right = {(row["method"], row["object"]): row["noun_accuracy"] == 1.0 for row in rows}
+    objects = list(dict.fromkeys(row["object"] for row in rows))
+    return {
+        method: {
+            "corrected": sum(right[(method, o)] and not right[("perception", o)] for o in objects),
+            "broken": sum(right[("perception", o)] and not right[(method, o)] for o in objects),
+        }
+        for method in dict.fromkeys(row["method"] for row in rows)
+        if method != "perception"
+    }
 
 
 def _mean_accuracies(rows: list[dict[str, Any]], method: str) -> dict[str, float]:

@@ -39,8 +39,8 @@ import numpy as np
 
 from core.context import IncrementalLDA, average_log_likelihood
 from core.prototypes import fit_prototypes
-from experiments import context_scenes, recognition
-from sim.world import World
+from experiments import context_scenes, documents, recognition
+from sim.world import DEFAULT_WORLD, World
 
 SIGMAS = tuple(round(0.1 * i, 1) for i in range(11))
 CURVES = ("log_likelihood", "log_likelihood_with_verbs", "log_likelihood_in_context_web", "overall_accuracy")
@@ -66,22 +66,31 @@ class ContextExperiment:
     context_model: IncrementalLDA
 
 
-def fitted_setup(seed: int, quick: bool) -> tuple[recognition.RecognitionSetup, dict[str, context_scenes.Features]]:
+def fitted_setup(
+    seed: int, quick: bool, world_name: str = DEFAULT_WORLD, source: str = documents.DEFAULT_SOURCE
+) -> tuple[recognition.RecognitionSetup, dict[str, context_scenes.Features]]:
     """Fig. 13's setup (prototypes and web fitted on the training objects, test objects perceived)
     and the features of every object it recorded; ``quick`` takes recognition's quick objects."""
-    world = World.paper(seed=seed)
+    world = World.paper(seed=seed, difficulty=world_name)
     train, test = recognition.experiment_objects(world, quick)
     features = context_scenes.object_features(world, train + test, seed)
     prototypes = fit_prototypes(world.vocabulary, *recognition.training_data(train, features), seed=seed)
-    return recognition.make_setup(world, train, test, features, prototypes), features
+    return recognition.make_setup(world, train, test, features, prototypes, source), features
 
 
-def prepare(seed: int, quick: bool, training_scenes: int | None = None) -> ContextExperiment:
+def prepare(
+    seed: int,
+    quick: bool,
+    training_scenes: int | None = None,
+    world_name: str = DEFAULT_WORLD,
+    source: str = documents.DEFAULT_SOURCE,
+) -> ContextExperiment:
     """Step 1 of the protocol; ``--quick`` uses recognition's quick objects and 20 training scenes."""
-    setup, _ = fitted_setup(seed, quick)
+    setup, _ = fitted_setup(seed, quick, world_name, source)
     n_scenes = training_scenes or (QUICK_TRAINING_SCENES if quick else context_scenes.TRAINING_SCENES)
     rng = np.random.default_rng([seed, _CONTEXT_MODEL_STREAM])
-    return ContextExperiment(setup, context_scenes.train_context_model(setup.world, setup.train, rng, n_scenes))
+    model = context_scenes.train_context_model(setup.world, setup.train, rng, n_scenes, words=setup.train_words)
+    return ContextExperiment(setup, model)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -90,10 +99,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--training-scenes", type=int, default=None,
                         help=f"scenes the context model learns from (default {context_scenes.TRAINING_SCENES})")  # fmt: skip
+    documents.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    experiment = prepare(args.seed, args.quick, args.training_scenes)
+    experiment = prepare(args.seed, args.quick, args.training_scenes, args.world, args.documents)
     draws = args.draws or (QUICK_DRAWS if args.quick else DRAWS)
     curves = log_likelihood_curves(experiment, draws, np.random.default_rng([args.seed, _SCENES_STREAM]))
     _write_csv(args.out / "sigma.csv", curves)

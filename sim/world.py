@@ -31,7 +31,7 @@ TEST = "test"
 #: The paper world's difficulties (presets in ``core/data/paper_world.json``, docs/world.md "Difficulty").
 WORLDS: tuple[str, ...] = ("easy", "hard")
 #: The difficulty the experiments use unless told otherwise (``--world``).
-DEFAULT_WORLD = "easy"
+DEFAULT_WORLD = "hard"
 
 # Independent random streams derived from one seed, so that e.g. drawing scenes never
 # changes the objects, and recording one object never changes another one's body.

@@ -10,6 +10,7 @@ from scipy.special import gammaln
 
 from core.context import IncrementalLDA, LDAState
 from core.context.scene_partition import SceneBlocks, best_partition, corpus_centred_prior, partition_evidence
+from experiments import documents
 from sim.world import WorldConfig, generate_scenes
 
 
@@ -62,7 +63,7 @@ def test_corpus_centred_prior_has_the_given_strength_and_the_corpus_shape() -> N
     assert prior[2] / prior[0] == pytest.approx(30.1 / 10.1) and prior[1] > 0
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [5, 6])
 def test_search_finds_the_best_partition_of_every_labelling(seed: int) -> None:
     """6 scenes into 3 contexts: 729 labellings, and the search reaches the best of them."""
     blocks, counts, _ = _blocks(6, seed)
@@ -75,23 +76,61 @@ def test_search_finds_the_best_partition_of_every_labelling(seed: int) -> None:
     assert partition_evidence(blocks, found.labels, 3, prior, 0.1) == pytest.approx(found.evidence)
 
 
-@pytest.mark.parametrize("n_scenes", [3, 5, 10])
-def test_growth_stops_at_the_contexts_present_from_three_scenes(n_scenes: int) -> None:
-    """Issue 4: with ≥ 3 scenes, K = the contexts the scenes hold in ≥ 9 of 10 test sets
-    (measured: 10/10 at 3, 5, 10, 20, 50 and 100 scenes; docs/context.md)."""
+#: Test sets of the stop-K tests: not the report's (its seeds 0–4 give test sets 0–4009).
+TEST_SETS = range(100, 110)
+#: The perceived world of the stop-K test: recognition's quick objects of the hard world at this seed
+#: (≈ 25 s of feature extraction, shared with the other experiment tests of the process).
+PERCEIVED_SEED = 7
+#: Measured below the paper's 9-of-10 bar (issue 15; the report judges the same bar over its seeds):
+#: label documents at |D| = 5 (8/10; 10/10 on the test sets 0–9 these tests used before), perceived
+#: webs at |D| = 3 (7/10), 5 (5/10) and 10 (7/10); perceived webs reach 10/10 at |D| = 20.
+#: Strict: a fix makes these cases pass, and their marks must go.
+_BELOW_THE_PAPER = {
+    ("labels", 5): "8/10",
+    ("perceived", 3): "7/10",
+    ("perceived", 5): "5/10",
+    ("perceived", 10): "7/10",
+}
+
+
+def _stop_k_cases() -> list[object]:
+    return [
+        pytest.param(
+            source,
+            n_scenes,
+            marks=[pytest.mark.xfail(strict=True, reason=f"measured {_BELOW_THE_PAPER[(source, n_scenes)]}")]
+            if (source, n_scenes) in _BELOW_THE_PAPER
+            else [],
+        )
+        for source in ("labels", "perceived")
+        for n_scenes in ((3, 5, 10) if source == "labels" else (3, 5, 10, 20))
+    ]
+
+
+@pytest.mark.parametrize(("source", "n_scenes"), _stop_k_cases())
+def test_growth_stops_at_the_contexts_present_from_three_scenes(source: str, n_scenes: int) -> None:
+    """Fig. 11 / issue 4: with ≥ 3 scenes, K = the contexts the scenes hold in ≥ 9 of 10 test sets, on
+    the label documents (``Scene.tokens``) and on the paper's: the active concepts of perceived webs."""
     hits = []
-    for seed in range(10):
-        scenes = generate_scenes(WorldConfig.paper(), n_scenes, seed)
+    for seed in TEST_SETS:
+        if source == "labels":
+            scenes = generate_scenes(WorldConfig.paper(), n_scenes, seed)
+            tokens = [scene.tokens() for scene in scenes]
+        else:
+            docs = documents.experiment_documents("hard", PERCEIVED_SEED, documents.PERCEIVED, quick=True)
+            scenes = docs.scenes(n_scenes, seed)
+            tokens = [docs.scene(scene) for scene in scenes]
         present = len({c for scene in scenes for c in scene.object_contexts})
-        found = IncrementalLDA(seed=seed).fit([scene.tokens() for scene in scenes]).n_contexts
+        found = IncrementalLDA(seed=seed).fit(tokens).n_contexts
         hits.append(found == present)
     assert sum(hits) >= 9, hits
 
 
+@pytest.mark.xfail(strict=True, reason="test set 104 merges the Playroom and the Workshop (issue 15)")
 def test_the_found_contexts_are_the_true_ones() -> None:
     """Not only the right K: the scenes of each true context share one learned context."""
-    scenes = generate_scenes(WorldConfig.paper(), 10, 4)
-    model = IncrementalLDA(seed=4).fit([scene.tokens() for scene in scenes])
+    scenes = generate_scenes(WorldConfig.paper(), 10, 104)
+    model = IncrementalLDA(seed=104).fit([scene.tokens() for scene in scenes])
     learned = model.lda_state.n_dk.argmax(axis=1)
     pairs = {(scene.object_contexts[0], int(context)) for scene, context in zip(scenes, learned, strict=True)}
     assert len(pairs) == len({truth for truth, _ in pairs}) == len({context for _, context in pairs}) == 3, pairs

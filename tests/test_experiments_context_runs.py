@@ -18,12 +18,15 @@ import pytest
 from core.vocabulary import paper_vocabulary
 from experiments import noise, raw_vs_web, recognition, sigma
 
+#: Not one of the report's seeds (0-4): a test must not pin what the report judges.
+TEST_SEED = 7
+
 
 def run_quick(module: ModuleType, out: Path) -> dict[str, Any]:
     parser = argparse.ArgumentParser()
     module.add_arguments(parser)
     args = parser.parse_args([])
-    args.out, args.quick, args.seed, args.json = out, True, 0, False
+    args.out, args.quick, args.seed, args.json = out, True, TEST_SEED, False
     return module.run(args)
 
 
@@ -82,7 +85,7 @@ def test_raw_vs_web(tmp_path: Path) -> None:
     curves = summary["score_by_scenes"]
     assert set(curves) == {
         "concept_web",
-        "concept_web_with_verbs",
+        "concept_web_entity",
         *(f"raw_{b}_bins" for b in raw_vs_web.QUICK_BIN_COUNTS),
     }
     for values in curves.values():
@@ -104,7 +107,7 @@ def test_raw_tokens_bin_each_feature_over_its_range() -> None:
 
 
 def test_in_context_recognition_is_a_recognition_method() -> None:
-    setup, _ = sigma.fitted_setup(0, quick=True)
+    setup, _ = sigma.fitted_setup(TEST_SEED, quick=True)
     assert list(recognition.METHODS) == ["perception", "concept_web", "in_context", "in_context_log"]
     probabilities = recognition.METHODS["in_context"](setup)
     assert probabilities.shape == setup.perception.shape

@@ -12,9 +12,12 @@ import pytest
 
 from core.errors import InvalidInputError
 from core.planning import MODES, PRUNING_THRESHOLD, Workspace, prune_behaviours
-from experiments import planning
+from experiments import documents, planning
 from sim.world import World
 from tests.test_planning_effects import synthetic_effects
+
+#: Not one of the report's seeds (0-4): a test must not pin what the report judges.
+TEST_SEED = 7
 
 
 @pytest.fixture(scope="module")
@@ -23,7 +26,7 @@ def quick_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, Any],
     parser = argparse.ArgumentParser()
     planning.add_arguments(parser)
     args = parser.parse_args([])
-    args.out, args.quick, args.seed, args.json = out, True, 0, False
+    args.out, args.quick, args.seed, args.json = out, True, TEST_SEED, False
     return planning.run(args), out
 
 
@@ -51,7 +54,12 @@ def test_pruning_learned_from_world_scenes(quick_run: tuple[dict[str, Any], Path
 
 
 def test_labelled_scene_source_prunes_the_same() -> None:
-    learned = planning.learned_verb_given_context(World.paper(0), planning.TRAINING_SCENES, 0, "scenes")
+    learned = planning.learned_verb_given_context(
+        documents.experiment_documents("hard", TEST_SEED, documents.LABELS),
+        planning.TRAINING_SCENES,
+        TEST_SEED,
+        "scenes",
+    )
     assert {context: len(prune_behaviours(p).kept) for context, p in learned.items()} == {
         "kitchen": 5,
         "playroom": 9,
@@ -87,7 +95,7 @@ def test_outputs_are_written(quick_run: tuple[dict[str, Any], Path]) -> None:
 def test_same_seed_same_scenarios() -> None:
     effects = synthetic_effects(Workspace(cell_size=0.1))
     kept = {"kitchen": ["move_left", "move_right"], "workshop": list(effects.behaviours)}
-    world = World.paper(0)
+    world = World.paper(TEST_SEED)
     first, second, other = (
         planning.random_scenarios(effects, kept, world, 40, np.random.default_rng(seed)) for seed in (3, 3, 4)
     )
@@ -99,6 +107,6 @@ def test_defaults_and_bad_sizes(tmp_path: Path) -> None:
     planning.add_arguments(parser)
     args = parser.parse_args(["--scenarios", "0"])
     assert args.threshold == PRUNING_THRESHOLD and args.pruning_source == "context_model"
-    args.out, args.quick, args.seed = tmp_path, True, 0
+    args.out, args.quick, args.seed = tmp_path, True, TEST_SEED
     with pytest.raises(InvalidInputError, match="scenarios: must be at least 1"):
         planning.run(args)

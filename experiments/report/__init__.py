@@ -1,11 +1,14 @@
 """The reproduction report (``contextweb report``): every experiment, one Markdown page, computed verdicts.
 
 :func:`generate_report` runs each experiment of :data:`experiments.EXPERIMENTS`
-into ``out/NAME/`` with the defaults of its own parser (what ``contextweb
-experiment NAME`` would run; ``quick`` for tests), takes the §V-F running times,
-and writes one page. For each claim of the paper the page shows the paper's
-numbers, ours (a table, the experiment's figures), the criterion, and a verdict
-computed from the experiment's summary:
+at every seed (default 0–4) into ``out/NAME/seed-S/`` with the defaults of its own
+parser (what ``contextweb experiment NAME`` would run; ``quick`` for tests), and
+the ablations its claims show beside them into ``out/NAME@ABLATION/seed-S/``, in
+parallel processes; takes the §V-F running times, and writes one page. For each
+claim of the paper the page shows the paper's numbers, ours (a table of medians
+and ranges over the seeds, the first seed's figures), the criterion, and a
+verdict computed from the experiment's summaries by the rule of ``seeds.py``
+(at the median and at 4 of 5 seeds):
 
 - ``reproduced``: the criterion holds;
 - ``better``: it holds and our numbers beat the paper's own on the measure the
@@ -23,7 +26,8 @@ Layout:
   reason), its ``judge`` and ``table``, and its ``CLAIMS``;
   :data:`~experiments.report.claims.CLAIMS` orders them for the page;
 - ``claim.py``: what a claim and a verdict are, and the shared formatting;
-- ``jobs.py``: running the experiments and the running-times job;
+- ``jobs.py``: running the experiments (and their ablations) at every seed, in parallel;
+- ``seeds.py``: the rule over seeds, median summaries and tables over the seeds;
 - ``page.py``: the Markdown page;
 - this module: the assembler (:func:`generate_report`) and the command line.
 """
@@ -34,12 +38,11 @@ import argparse
 from collections.abc import Sequence
 from pathlib import Path
 
-from tqdm import tqdm
-
+from core.errors import InvalidInputError
 from experiments.report.claim import Claim, Status, Verdict
 from experiments.report.claims import CLAIMS
 from experiments.report.claims.running_times import BENCH_RESULTS, RUNNING_TIMES
-from experiments.report.jobs import ReportResult, job_names, run_job
+from experiments.report.jobs import DEFAULT_SEEDS, ReportResult, job_label, job_names, job_specs, run_jobs
 from experiments.report.page import claim_section, evaluate, link, publish, render_page
 
 __all__ = [
@@ -58,33 +61,46 @@ __all__ = [
 def generate_report(
     out: Path,
     quick: bool = False,
-    seed: int = 0,
+    seeds: Sequence[int] = DEFAULT_SEEDS,
     only: Sequence[str] | None = None,
     page: Path | None = None,
     bench_results: Path = BENCH_RESULTS,
+    workers: int | None = None,
+    reuse: str = "none",
 ) -> ReportResult:
-    """Run the jobs (every experiment and :data:`RUNNING_TIMES`, or ``only`` those) into
-    ``out/NAME/`` and write the page: ``page`` (figures copied beside it, into a folder named
-    after it: ``docs/reproduction.md`` → ``docs/reproduction/``) or ``out/report.md``."""
+    """Run the jobs (every experiment at every seed with its claims' ablations, and
+    :data:`RUNNING_TIMES` once; or ``only`` those) into ``out/LABEL/seed-S/`` in ``workers``
+    processes (default one per core), judge every claim over the seeds (``seeds.RULE``) and write
+    the page: ``page`` (figures and summaries copied beside it, into a folder named after it:
+    ``docs/reproduction.md`` → ``docs/reproduction/``) or ``out/report.md``."""
+    if not seeds:
+        raise InvalidInputError("seeds", "needs at least one seed")
     names = job_names(only)
     page = page or out / "report.md"
-    figures_dir = page.parent / page.stem if page != out / "report.md" else out
-    results = ReportResult(page, {})
-    progress = tqdm(names, desc="report", unit="job")
-    for name in progress:
-        progress.set_postfix_str(name)
-        results.jobs[name] = run_job(name, out / name, quick, seed, bench_results)
+    figures_dir = page.parent / page.stem if page != out / "report.md" else out / "page"
+    specs = job_specs(names, list(seeds))
+    results = ReportResult(page, run_jobs(specs, out, quick, bench_results, workers, reuse))
     claims = [claim for claim in CLAIMS if claim.job in results.jobs]
     sections = []
     for claim in claims:
-        job = results.jobs[claim.job]
-        verdict, table = evaluate(claim, job)
+        judged, verdict, table = evaluate(claim, results.jobs[claim.job])
         results.verdicts[claim.name] = verdict
-        sections.append(claim_section(claim, job, verdict, table, publish(job, figures_dir), page.parent))
-    for name in (name for name in results.jobs if all(claim.job != name for claim in CLAIMS)):
-        job = results.jobs[name]
-        pngs, _ = publish(job, figures_dir)
-        status = "ran" if job.error is None else f"not run: {job.error}"
+        results.ablation_verdicts[claim.name] = {
+            ablation: evaluate(claim, results.jobs[job_label(claim.job, ablation)])[1]
+            for ablation in claim.ablations
+            if job_label(claim.job, ablation) in results.jobs
+        }
+        published = publish(claim.job, results.jobs[claim.job], figures_dir)
+        sections.append(claim_section(claim, results, table, judged, published, page.parent))
+    for label, runs in results.jobs.items():
+        if label not in (job_label(c.job, a) for c in claims for a in c.ablations):
+            continue
+        publish(label, runs, figures_dir)
+    for name in (name for name in results.jobs if all(claim.job != name.split("@")[0] for claim in CLAIMS)):
+        runs = results.jobs[name]
+        pngs, _ = publish(name, runs, figures_dir)
+        failed = next((run for run in runs if run.error is not None), None)
+        status = "ran" if failed is None else f"not run (seed {failed.seed}): {failed.error}"
         sections.append(
             [
                 f"## `{name}` (no claim of the paper attached)",
@@ -95,7 +111,7 @@ def generate_report(
             ]
         )
     page.parent.mkdir(parents=True, exist_ok=True)
-    page.write_text(render_page(results, claims, sections, quick, seed), encoding="utf-8")
+    page.write_text(render_page(results, claims, sections, quick, list(seeds)), encoding="utf-8")
     return results
 
 
@@ -111,7 +127,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="where the page goes (default OUT/report.md); figures are copied beside it",
     )
     parser.add_argument("--quick", action="store_true", help="every experiment at its --quick size, for tests")
-    parser.add_argument("--seed", type=int, default=0, help="seed of every experiment")
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        nargs="+",
+        default=list(DEFAULT_SEEDS),
+        help="seeds every experiment runs at (default 0 1 2 3 4); claims are judged over them",
+    )
+    parser.add_argument("--workers", type=int, default=None, help="parallel processes (default: one per core)")
+    parser.add_argument(
+        "--reuse",
+        choices=("none", "existing", "only"),
+        default="none",
+        help="take the summaries an earlier run left in OUT: 'existing' runs the missing jobs (resume), "
+        "'only' runs none and reports the missing ones as not run",
+    )
     parser.add_argument(
         "--only",
         nargs="+",
@@ -123,7 +153,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Write the report; exit status 1 if any job failed."""
-    result = generate_report(args.out, args.quick, args.seed, args.only, args.page)
+    result = generate_report(
+        args.out, args.quick, args.seeds, args.only, args.page, workers=args.workers, reuse=args.reuse
+    )
     for title, verdict in result.verdicts.items():
         print(f"{title}: {verdict.line()}")
     print(f"report: {result.page}")

@@ -45,6 +45,11 @@ class Claim:
     figures: bool = True
     #: Text files of the job's output shown verbatim.
     texts: tuple[str, ...] = ()
+    #: Ablations (``experiments.report.jobs.ABLATIONS``) judged by the same criterion beside the headline.
+    ablations: tuple[str, ...] = ()
+    #: The claim's headline number (its name, and how to read it from a summary), shown on the
+    #: page's first table as its median and range over the seeds.
+    headline: tuple[str, Callable[[Summary], float | None]] | None = None
 
     @property
     def name(self) -> str:

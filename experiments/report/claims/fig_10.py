@@ -60,5 +60,7 @@ CLAIMS: tuple[Claim, ...] = (
         f"fewer median sweeps than batch Gibbs and its final H̃ is within {ENTROPY_TOLERANCE} nats of batch's.",
         judge=judge,
         table=table,
+        ablations=("labels",),
+        headline=("median sweeps, K-incremental (C_low)", lambda s: s["summary"]["smoothed"][_PAPER_SOLVER]["median"]),
     ),
 )

@@ -34,5 +34,6 @@ CLAIMS: tuple[Claim, ...] = (
         criterion="in the paper's breadth-first tree, median node reduction Kitchen > Playroom > 0 and Workshop = 0.",
         judge=judge,
         table=table,
+        headline=("Kitchen median reduction", lambda s: s["median_nodes"]["paper"]["kitchen"]["reduction"]),
     ),
 )

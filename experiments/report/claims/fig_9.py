@@ -54,5 +54,6 @@ CLAIMS: tuple[Claim, ...] = (
         criterion=f"the σ maximising l̂ lies in [{PAPER_BEST_SIGMA[0]}, {PAPER_BEST_SIGMA[1]}].",
         judge=judge,
         table=table,
+        headline=("best σ", lambda s: s["best_sigma"]),
     ),
 )

@@ -121,5 +121,6 @@ CLAIMS: tuple[Claim, ...] = (
         f"mean − {TIME_STDS:g} std.",
         judge=judge,
         table=table,
+        headline=("context detection ms", lambda s: s["context_detection_ms"]),
     ),
 )

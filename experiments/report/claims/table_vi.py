@@ -9,9 +9,21 @@ import numpy as np
 from experiments.report.claim import Claim, Summary, Table, Verdict, number, verdict_of
 from sim.world import table_vi_scenes
 
-#: Table VI: largest |predicted − true| proportion accepted. Table VI's proportions are by objects
-#: while LDA sees tokens, and the paper's own predictions deviate by up to 0.07.
-TABLE_VI_TOLERANCE = 0.15
+
+def _paper_worst_error() -> float:
+    """The paper's own worst |predicted − true| proportion in Table VI (0.071: playroom+workshop's
+    Workshop, 26.23 % for 1/3), from the paper's data (core/data/paper_world.json)."""
+    return max(
+        abs(spec.paper_prediction.get(context, 0.0) - spec.mixture.get(context, 0.0))
+        for spec in table_vi_scenes()
+        for context in {*spec.mixture, *spec.paper_prediction}
+    )
+
+
+#: Table VI: largest |predicted − true| proportion accepted: the paper's own worst error (issue 15:
+#: as strict as the paper's table, which is the only evidence of what the paper's model achieves).
+#: Proportions are by objects while LDA sees tokens; the table lists both.
+TABLE_VI_TOLERANCE = round(_paper_worst_error(), 3)
 
 
 def _rows(summary: Summary) -> list[dict[str, Any]]:
@@ -49,6 +61,10 @@ def judge(summary: Summary) -> Verdict:
     return verdict_of(not misses, facts, why, better=ours_mean < paper_mean)
 
 
+def worst_error(summary: Summary) -> float:
+    return max(abs(r["ours"] - r["true"]) for r in _rows(summary))
+
+
 def table(summary: Summary) -> Table:
     header = ["scene", "context", "true (objects)", "true (tokens)", "paper", "ours (mean ± std)"]
     return [header] + [
@@ -79,9 +95,11 @@ CLAIMS: tuple[Claim, ...] = (
         title="context of pure and mixed scenes",
         job="mixed",
         paper=f"pure scenes: 100 % their context; mixed scenes: {_paper_predictions()}.",
-        criterion=f"every predicted proportion is within {TABLE_VI_TOLERANCE} of the true one (by objects); better "
-        "if the mean |error| is also below the paper's own.",
+        criterion=f"every predicted proportion is within {TABLE_VI_TOLERANCE} (the paper's own worst error) of the "
+        "true one (by objects); better if the mean |error| is also below the paper's own.",
         judge=judge,
         table=table,
+        ablations=("easy", "labels"),
+        headline=("worst |error|", worst_error),
     ),
 )

@@ -25,6 +25,7 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -88,7 +89,8 @@ def _store(prefix: tuple[str, str, int, int], object_id: str, features: Features
     path.parent.mkdir(parents=True, exist_ok=True)
     entity, effects = features
     partial = path.with_suffix(f".{os.getpid()}.tmp.npz")
-    np.savez(partial, entity=entity, **{f"effect_{verb}": effect for verb, effect in effects.items()})
+    arrays: dict[str, Any] = {"entity": entity} | {f"effect_{verb}": effect for verb, effect in effects.items()}
+    np.savez(partial, **arrays)
     partial.replace(path)
 
 

@@ -55,6 +55,8 @@ from scipy.optimize import linear_sum_assignment
 
 from core.context import IncrementalLDA, low_confidence_concepts
 from core.context.k_selection import PAPER_TAU
+from core.context.k_selection.paper import PaperSettings
+from core.context.k_selection.scenes import ScenesSettings
 from core.errors import InvalidInputError
 from experiments import documents
 
@@ -147,6 +149,7 @@ def run_test_set(
             seed_tokens = np.zeros(state.n_tokens, dtype=bool)
             seed_tokens[state.doc_offsets[worst] : state.doc_offsets[worst + 1]] = True
         scans = split_scans if solver.endswith("_split") else 0
+        assert isinstance(h.k_rule, ScenesSettings | PaperSettings)  # both rules grow from a δ-start
         state.grow_k_incrementally(seed_tokens, h.k_rule.delta, np.random.default_rng(seed), split_scans=scans)
         entropies, accuracy = trace_run(model, sweeps - scans, truth)
         traces[solver], accuracies[solver] = [np.nan] * scans + entropies, [np.nan] * scans + accuracy

@@ -72,8 +72,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     config = docs.world.config
     specs = table_vi_scenes()
     names = [context.name for context in config.contexts]
-    predicted = {spec.name: {name: [] for name in [*names, UNNAMED]} for spec in specs}
-    shares = {spec.name: {name: [] for name in names} for spec in specs}
+    predicted: dict[str, dict[str, list[float]]] = {
+        spec.name: {name: [] for name in [*names, UNNAMED]} for spec in specs
+    }
+    shares: dict[str, dict[str, list[float]]] = {spec.name: {name: [] for name in names} for spec in specs}
     found_k = []
     for repeat in range(repeats):
         seed = args.seed * 1000 + repeat

@@ -47,7 +47,7 @@ CURVES = ("log_likelihood", "log_likelihood_with_verbs", "log_likelihood_in_cont
 DRAWS = 20
 QUICK_DRAWS = 2
 QUICK_TRAINING_SCENES = 20
-PAPER = {
+PAPER: dict[str, Any] = {
     "figure": "Fig. 9",
     "best_sigma_interval": [0.4, 0.5],
     "chosen_sigma": 0.5,

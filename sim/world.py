@@ -699,7 +699,7 @@ class World:
             for obj in chosen
         }
 
-    def scenes(self, n_scenes: int, seed: int = 0, **options: Any) -> tuple[Scene, ...]:
+    def scenes(self, n_scenes: int, seed: int | np.random.Generator = 0, **options: Any) -> tuple[Scene, ...]:
         """:func:`generate_scenes` over this world's objects."""
         return generate_scenes(self, n_scenes, seed, **options)
 

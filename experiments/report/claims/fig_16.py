@@ -8,7 +8,13 @@ from experiments.report.claim import Claim, Summary, Table, Verdict, verdict_of
 def judge(summary: Summary) -> Verdict:
     reduction = {context: values["reduction"] for context, values in summary["median_nodes"]["paper"].items()}
     kitchen, playroom, workshop = (reduction.get(c) for c in ("kitchen", "playroom", "workshop"))
-    holds = None not in (kitchen, playroom, workshop) and kitchen > playroom > 0 and workshop == 0
+    holds = (
+        kitchen is not None
+        and playroom is not None
+        and workshop is not None
+        and kitchen > playroom > 0
+        and workshop == 0
+    )
     facts = f"median reduction of the breadth-first tree over {summary['scenarios']:,} scenarios: " + ", ".join(
         f"{c} {r:.0%}" for c, r in reduction.items()
     )

@@ -28,6 +28,8 @@ PROFILE_CONFIG = ROOT / "docker" / "monitoring" / "prometheus.yml"
 PROMETHEUS = shutil.which("prometheus")
 #: Long enough for two scrapes at the 1 s interval below, so that rate() has two points per series.
 SCRAPED_SECONDS = 60.0
+#: Prometheus's own start (opening its database) on a loaded 2-core machine.
+READY_SECONDS = 60.0
 
 pytestmark = [
     pytest.mark.slow,
@@ -62,16 +64,34 @@ def prometheus(tmp_path: Path) -> Iterator[tuple[ServerProcess, str]]:
             stdout=log,
             stderr=subprocess.STDOUT,
         )
+        url = f"http://127.0.0.1:{port}"
         try:
-            yield server, f"http://127.0.0.1:{port}"
+            _wait_ready(url, process, tmp_path / "prometheus.log")
+            yield server, url
         finally:
             process.terminate()
             process.wait(timeout=10)
             log.close()
 
 
+def _wait_ready(url: str, process: subprocess.Popen[bytes], log: Path) -> None:
+    """Until Prometheus's /-/ready says 200 (it answers 503 while it opens its database)."""
+    deadline = time.monotonic() + READY_SECONDS
+    while time.monotonic() < deadline:
+        assert process.poll() is None, log.read_text(errors="replace")[-2000:]
+        try:
+            if httpx.get(f"{url}/-/ready", timeout=2).status_code == 200:
+                return
+        except httpx.TransportError:
+            pass
+        time.sleep(0.2)
+    pytest.fail(f"Prometheus not ready in {READY_SECONDS} s: {log.read_text(errors='replace')[-2000:]}")
+
+
 def _query(prometheus_url: str, expr: str) -> list[dict]:
-    answer = httpx.get(f"{prometheus_url}/api/v1/query", params={"query": expr}, timeout=5).json()
+    response = httpx.get(f"{prometheus_url}/api/v1/query", params={"query": expr}, timeout=5)
+    response.raise_for_status()
+    answer = response.json()
     assert answer["status"] == "success", (expr, answer)
     return answer["data"]["result"]
 

@@ -9,8 +9,8 @@ series during *grasp* and the audio during *shake*.
 Every modelling choice is documented in ``docs/world.md``; the constants below
 are the simulator's physics, named so that a reader can change one at a time.
 Geometry is sampled with vectorised numpy (area-uniform surface points, then a
-camera-visibility cull): recording the paper's 60 objects (about 1,300 clouds)
-takes about 2 s of CPU on the shared 2-core development machine.
+camera-visibility cull), so that recording the paper's 60 objects (about 1,300
+clouds) stays cheap (the figure: docs/benchmarks.md).
 """
 
 from __future__ import annotations

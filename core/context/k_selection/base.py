@@ -25,7 +25,7 @@ from core.errors import InvalidInputError
 
 
 @dataclass(frozen=True)
-class KRuleSettings:
+class KRuleSettings(ABC):
     """Settings every K rule has: the cap on K and the online growth-check schedule."""
 
     name: ClassVar[str]
@@ -53,9 +53,9 @@ class KRuleSettings:
         for name in ("max_contexts", "birth_window", "birth_check_interval", "novelty_window"):
             integer_at_least(self, name, 1)
 
+    @abstractmethod
     def make_rule(self) -> KRule:
         """The rule these settings configure."""
-        raise NotImplementedError
 
     def to_dict(self) -> dict[str, Any]:
         """``{"name": ..., <setting>: <value>, ...}``, the stored and API form."""

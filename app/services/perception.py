@@ -5,7 +5,9 @@ here they are checked against the model (known behaviours, fitted prototypes),
 turned into core's objects (raw payloads into ``core.payloads``, their problems
 reported at their place in the request) and sent through ``core.scene``:
 perception, concept webs, active concepts (:func:`analyse_objects`), then Eq. 6
-in context (:func:`in_context`). The answers' named probabilities are built here.
+in context (:func:`in_context`). The answers' named probabilities are built here,
+rounded once to ``ANSWER_DECIMALS`` places (:func:`reported`; docs/api.md, "Precision of
+answers"): the core's arrays, and every decision taken from them, keep full precision.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import numpy as np
 
 from app.errors import InvalidInput, ModelNotFitted
 from app.schemas.observations import InteractionIn, ObjectFeatures, RawObject, as_array
-from app.schemas.scenes import ObjectLevel, SceneObject
+from app.schemas.scenes import ANSWER_DECIMALS, ObjectLevel, SceneObject
 from core.context.incremental import IncrementalLDA
 from core.errors import InvalidInputError
 from core.features.extract import recording_features
@@ -47,6 +49,7 @@ __all__ = [
     "feature_vectors",
     "in_context",
     "raw_feature_vectors",
+    "reported",
 ]
 
 PayloadT = TypeVar("PayloadT")
@@ -114,7 +117,10 @@ def _answered(vocabulary: Vocabulary, scene: PerceivedScene) -> SceneAnalysis:
         ObjectResult(
             level=obj.level,
             active_concepts=list(obj.active_concepts),
-            perception={**_named(concepts, obj.evidence.probabilities), **obj.evidence.unseen},
+            perception={
+                **_named(concepts, obj.evidence.probabilities),
+                **_named(list(obj.evidence.unseen), list(obj.evidence.unseen.values())),
+            },
             web=None if obj.web is None else _named(concepts, obj.web.probabilities),
         )
         for obj in scene.objects
@@ -122,8 +128,15 @@ def _answered(vocabulary: Vocabulary, scene: PerceivedScene) -> SceneAnalysis:
     return SceneAnalysis(objects, scene)
 
 
-def _named(concepts: Sequence[str], values: np.ndarray) -> dict[str, float]:
-    return dict(zip(concepts, values.tolist(), strict=True))
+def reported(probabilities: np.ndarray | Sequence[float]) -> list[float]:
+    """Probabilities as an answer reports them: rounded to ``ANSWER_DECIMALS`` places (numpy's
+    round half to even of the scaled value; the result prints with at most that many decimals)."""
+    return np.round(np.asarray(probabilities, dtype=np.float64), ANSWER_DECIMALS).tolist()
+
+
+def _named(concepts: Sequence[str], values: np.ndarray | Sequence[float]) -> dict[str, float]:
+    """Probabilities by concept name, as reported (:func:`reported`)."""
+    return dict(zip(concepts, reported(values), strict=True))
 
 
 def _core_object(perception: Perception, obj: SceneObject, field: str, model_id: str) -> CoreObject:

@@ -43,7 +43,7 @@ from app.registry import ModelRuntime, jsonable
 from app.schemas.common import Page
 from app.schemas.scenes import ObjectAnalysis, SceneCreate, SceneRead, SceneSummary
 from app.services.limits import check_vocabulary_growth
-from app.services.perception import ObjectResult, Perception, SceneAnalysis, analyse_objects, in_context
+from app.services.perception import ObjectResult, Perception, SceneAnalysis, analyse_objects, in_context, reported
 from core.context.incremental import SceneUpdate
 from core.errors import InvalidInputError
 from storage.database import pipelined
@@ -143,7 +143,7 @@ def infer_scene(model: ModelRuntime, body: SceneCreate, session: Session | None 
         learned=False,
         context_count=context_count,
         previous_context_count=context_count,
-        context_posterior=posterior.tolist(),
+        context_posterior=reported(posterior),
         map_context=map_context,
         map_context_label=None if session is None else context_repository.context_label(session, model.id, map_context),
         objects=[_object_analysis(result) for result in analysis.objects],
@@ -221,7 +221,7 @@ def _answer(
         learned=True,
         context_count=int(update.contexts_after),
         previous_context_count=int(update.contexts_before),
-        context_posterior=posterior.tolist(),
+        context_posterior=reported(posterior),
         map_context=map_context,
         map_context_label=labels(map_context),
         objects=[

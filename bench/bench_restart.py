@@ -79,13 +79,14 @@ def _settings(url: str) -> Settings:
     return Settings(**values)
 
 
-def build(path: Path, size: int, pool: list[dict[str, Any]]) -> tuple[str, float]:
-    """A database at ``path`` with one trained model that has learned ``size`` scenes; (model id, seconds)."""
+def build(path: Path, size: int, pool: list[dict[str, Any]], *, training_seed: int = 1) -> tuple[str, float]:
+    """A database at ``path`` with one trained model (on the synthetic training objects of
+    ``training_seed``) that has learned ``size`` scenes; (model id, seconds)."""
     url = f"sqlite:///{path}"
     world = World.paper(0)
     with TestClient(create_app(_settings(_migrated(url)))) as client:
         model_id = client.post("/v1/models", json={"name": "month", "seed": 0}).json()["id"]
-        training = {"objects": synthetic_training_objects(world, seed=1)}
+        training = {"objects": synthetic_training_objects(world, seed=training_seed)}
         client.post(f"/v1/models/{model_id}/training-objects", json=training).raise_for_status()
         client.post(f"/v1/models/{model_id}/fit", json={}).raise_for_status()
         state = client.app_state["contextweb"]

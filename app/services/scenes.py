@@ -59,7 +59,8 @@ class PreparedScene:
     """A scene analysed outside the model's lock (:func:`prepare_scene`), waiting for :func:`learn_scene`."""
 
     body: SceneCreate
-    request_hash: str
+    request_hash: bytes
+    """SHA-256 digest of the body (stored with a keyed scene, for its retries to match)."""
     perception: Perception
     """The perception the analysis used (compared by identity: a fit replaces it whole)."""
     analysis: SceneAnalysis | None
@@ -82,7 +83,7 @@ def prepare_scene(model: ModelRuntime, body: SceneCreate) -> PreparedScene:
     A refusal is kept, not raised: a retried scene's stored answer (Idempotency-Key) wins over it,
     as when the analysis ran under the lock."""
     perception = model.perception
-    request_hash = hashlib.sha256(body.model_dump_json().encode()).hexdigest()
+    request_hash = hashlib.sha256(body.model_dump_json().encode()).digest()
     try:
         analysis = analyse_objects(perception, body.objects, model.id)
     except (ContextwebError, InvalidInputError) as refusal:
@@ -247,7 +248,7 @@ def _save(
     answer: SceneRead,
     answer_json: str,
     idempotency_key: str | None,
-    request_hash: str,
+    request_hash: bytes,
 ) -> None:
     first_word = len(model.word_kinds) - len(update.vocabulary_additions)
     with pipelined(session):  # PostgreSQL: the scene's statements in one round trip
@@ -266,7 +267,7 @@ def _save_rows(
     answer: SceneRead,
     answer_json: str,
     idempotency_key: str | None,
-    request_hash: str,
+    request_hash: bytes,
 ) -> None:
     lda_repository.save_scene(
         session,
@@ -294,7 +295,7 @@ def _save_rows(
         model.id,
         update.scene_index,
         idempotency_key=idempotency_key,
-        request_hash=request_hash,
+        request_hash=None if idempotency_key is None else request_hash,
         context_count=answer.context_count,
         map_context=answer.map_context,
         context_posterior=answer.context_posterior,

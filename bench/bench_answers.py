@@ -12,7 +12,9 @@ Two paper-world models learn concept-level scenes in-process through the service
 
 Figures: the answer's JSON and each way of storing it (mean bytes; CPU time to compress and to
 decompress one, median of ``REPEATS`` passes over all answers); the scene row's columns (mean
-``length()`` in SQLite) and the pages of the scene table and its indexes per scene (``dbstat``).
+``length()`` in SQLite) and the pages of the scene table and its indexes per scene (``dbstat``),
+for scenes posted without an Idempotency-Key and (``keyed_scene_row``, the same scenes again)
+with one of 32 characters, as the bridge sends.
 Results go to bench/results/answers.json.
 """
 
@@ -53,10 +55,11 @@ SCENE_COLUMNS = (
 )
 
 
-def learned_answers(path: Path, scenes: int, training_seed: int, scene_seed: int) -> list[str]:
-    """The stored answers of a model that learned ``scenes`` concept-level scenes (database at ``path``)."""
+def learned_answers(path: Path, scenes: int, training_seed: int, scene_seed: int, *, keyed: bool = False) -> list[str]:
+    """The stored answers of a model that learned ``scenes`` concept-level scenes (database at ``path``;
+    each scene with an Idempotency-Key if ``keyed``)."""
     pool = concept_scenes(World.paper(0), scenes, seed=scene_seed)
-    build(path, scenes, pool, training_seed=training_seed)
+    build(path, scenes, pool, training_seed=training_seed, keyed=keyed)
     engine = create_database_engine(f"sqlite:///{path}")
     try:
         with engine.connect() as connection:
@@ -148,9 +151,14 @@ def main() -> dict[str, Any]:
             training = learned_answers(work / "a.sqlite3", TRAINING_SCENES, training_seed=1, scene_seed=7)
             Path(target).write_bytes(train_dictionary(training))
             print(f"dictionary trained on {len(training)} answers written to {target}", flush=True)
-        held_out = work / "b.sqlite3"
+        held_out, keyed = work / "b.sqlite3", work / "b_keyed.sqlite3"
         answers = learned_answers(held_out, HELD_OUT_SCENES, training_seed=5, scene_seed=11)
-        result = {"answers": answer_formats(answers), "scene_row": scene_row(held_out, HELD_OUT_SCENES)}
+        learned_answers(keyed, HELD_OUT_SCENES, training_seed=5, scene_seed=11, keyed=True)
+        result = {
+            "answers": answer_formats(answers),
+            "scene_row": scene_row(held_out, HELD_OUT_SCENES),
+            "keyed_scene_row": scene_row(keyed, HELD_OUT_SCENES),
+        }
     print(json.dumps(result, indent=2), flush=True)
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "answers.json").write_text(json.dumps(result, indent=2) + "\n")

@@ -79,9 +79,12 @@ def _settings(url: str) -> Settings:
     return Settings(**values)
 
 
-def build(path: Path, size: int, pool: list[dict[str, Any]], *, training_seed: int = 1) -> tuple[str, float]:
+def build(
+    path: Path, size: int, pool: list[dict[str, Any]], *, training_seed: int = 1, keyed: bool = False
+) -> tuple[str, float]:
     """A database at ``path`` with one trained model (on the synthetic training objects of
-    ``training_seed``) that has learned ``size`` scenes; (model id, seconds)."""
+    ``training_seed``) that has learned ``size`` scenes, each with a 32-character Idempotency-Key
+    (as the bridge's) if ``keyed``; (model id, seconds)."""
     url = f"sqlite:///{path}"
     world = World.paper(0)
     with TestClient(create_app(_settings(_migrated(url)))) as client:
@@ -100,7 +103,8 @@ def build(path: Path, size: int, pool: list[dict[str, Any]], *, training_seed: i
                     if i:
                         write.version += 1  # one version per scene, as the service gives them
                     prepared = scene_service.prepare_scene(model, bodies[learned % len(bodies)])
-                    scene_service.learn_scene(write.session, model, write.version, prepared, None)
+                    key = f"{learned:032x}" if keyed else None
+                    scene_service.learn_scene(write.session, model, write.version, prepared, key)
                     learned += 1
                 write.version_saved = True
             if learned % 50_000 < BATCH:

@@ -19,7 +19,8 @@ gets a new format byte, and old rows keep decoding with theirs.
   that recur (a concept-level perception's 1.0/0.0, the web's and Eq. 6's usual
   figures). Measured on a held-out model's answers (docs/benchmarks.md, ``answers``):
   40 % smaller than with format 1's dictionary on the same rounded answers. Level
-  6 rather than 9: 9 saved ≈ 5 % more bytes for ≈ 60 % more CPU per answer.
+  6 rather than 9: 9 saved 5 % of the bytes for 65 % more CPU (both measured
+  loading the dictionary per answer).
 
 Each answer is deflated on its own, in its scene's transaction: blocks of answers
 would compress better but tie scenes' rows together.

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from decimal import Decimal
 from typing import Any
 
 import numpy as np
@@ -11,7 +12,14 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine, text
 
 from app.schemas.scenes import ANSWER_DECIMALS, SceneCreate, SceneRead
-from app.services.perception import SETTLED_WEBS_CACHED, Perception, SceneAnalysis, SettledWebs, analyse_objects
+from app.services.perception import (
+    SETTLED_WEBS_CACHED,
+    Perception,
+    SceneAnalysis,
+    SettledWebs,
+    analyse_objects,
+    reported,
+)
 from core.concept_web import ConceptWeb, WebInference
 from sim.world import World
 from storage.database import create_session_makers
@@ -133,6 +141,15 @@ def test_stored_counts_match_the_stored_assignments_and_memory(
 def _probabilities(answer: dict[str, Any]) -> list[float]:
     stages = [obj[stage] or {} for obj in answer["objects"] for stage in ("perception", "web", "in_context")]
     return [*answer["context_posterior"], *(p for stage in stages for p in stage.values())]
+
+
+def test_reported_probabilities_round_as_numpy_does_to_the_answers_decimals() -> None:
+    rng = np.random.default_rng(0)
+    halves = (np.arange(10_000) + 0.5) / 10**ANSWER_DECIMALS  # ties, and their nearest doubles
+    values = np.concatenate([rng.random(10_000), rng.random(1_000) * 1e-5, halves, [0.0, 1.0, 0.9999995, 1e-300]])
+    assert reported(values) == np.round(values, ANSWER_DECIMALS).tolist()
+    assert reported(values) == reported(reported(values))
+    assert all(Decimal(repr(p)).as_tuple().exponent >= -ANSWER_DECIMALS for p in reported(values))
 
 
 def test_a_fitted_models_answers_are_stored_exactly_as_their_schema_gives_them(

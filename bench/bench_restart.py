@@ -79,13 +79,17 @@ def _settings(url: str) -> Settings:
     return Settings(**values)
 
 
-def build(path: Path, size: int, pool: list[dict[str, Any]]) -> tuple[str, float]:
-    """A database at ``path`` with one trained model that has learned ``size`` scenes; (model id, seconds)."""
+def build(
+    path: Path, size: int, pool: list[dict[str, Any]], *, training_seed: int = 1, keyed: bool = False
+) -> tuple[str, float]:
+    """A database at ``path`` with one trained model (on the synthetic training objects of
+    ``training_seed``) that has learned ``size`` scenes, each with a 32-character Idempotency-Key
+    (as the bridge's) if ``keyed``; (model id, seconds)."""
     url = f"sqlite:///{path}"
     world = World.paper(0)
     with TestClient(create_app(_settings(_migrated(url)))) as client:
         model_id = client.post("/v1/models", json={"name": "month", "seed": 0}).json()["id"]
-        training = {"objects": synthetic_training_objects(world, seed=1)}
+        training = {"objects": synthetic_training_objects(world, seed=training_seed)}
         client.post(f"/v1/models/{model_id}/training-objects", json=training).raise_for_status()
         client.post(f"/v1/models/{model_id}/fit", json={}).raise_for_status()
         state = client.app_state["contextweb"]
@@ -99,7 +103,8 @@ def build(path: Path, size: int, pool: list[dict[str, Any]]) -> tuple[str, float
                     if i:
                         write.version += 1  # one version per scene, as the service gives them
                     prepared = scene_service.prepare_scene(model, bodies[learned % len(bodies)])
-                    scene_service.learn_scene(write.session, model, write.version, prepared, None)
+                    key = f"{learned:032x}" if keyed else None
+                    scene_service.learn_scene(write.session, model, write.version, prepared, key)
                     learned += 1
                 write.version_saved = True
             if learned % 50_000 < BATCH:

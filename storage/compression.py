@@ -8,9 +8,26 @@ stored bytes are a format byte followed by the zlib stream; the format byte
 names the dictionary, which therefore never changes once written: a better one
 gets a new format byte, and old rows keep decoding with theirs.
 
+- Format 1 (:data:`ANSWER_DICTIONARY_1`): one concept-level answer's skeleton, for
+  answers whose probabilities printed with 17 significant digits.
+- Format 2 (:data:`ANSWER_DICTIONARY_2`, written since answers are rounded to
+  6 decimal places: docs/api.md, "Precision of answers"): 32 KiB of the most frequent
+  segments of 1,000 rounded paper-world answers, picked by zstd's dictionary
+  trainer (COVER) and used as deflate's preset dictionary
+  (``python -m bench.bench_answers --train-dictionary=PATH`` makes one the same way).
+  Its content is JSON text: keys, the paper's concepts in order, and the values
+  that recur (a concept-level perception's 1.0/0.0, the web's and Eq. 6's usual
+  figures). Measured on a held-out model's answers (docs/benchmarks.md, ``answers``):
+  40 % smaller than with format 1's dictionary on the same rounded answers. Level
+  6 rather than 9: 9 saved 5 % of the bytes for 65 % more CPU (both measured
+  loading the dictionary per answer).
+
+Each answer is deflated on its own, in its scene's transaction: blocks of answers
+would compress better but tie scenes' rows together.
+
 zlib rather than zstd: it is in the standard library, and zstandard is not a
-dependency of the project (a preset dictionary gives zlib most of zstd's gain
-on short texts; measured in bench/bench_restart.py: bytes per scene).
+dependency of the server (zstd with its own trained dictionary would store the
+answers smaller still: docs/benchmarks.md).
 
 Checkpoints are numpy arrays in the ``.npy`` format of :func:`numpy.savez`,
 each in the smallest integer type that holds it, deflated at level 1: a
@@ -22,6 +39,7 @@ from __future__ import annotations
 
 import io
 import zlib
+from pathlib import Path
 
 import numpy as np
 
@@ -85,17 +103,35 @@ ANSWER_DICTIONARY_1 = (
 ).encode()
 
 
+#: Format byte of :data:`ANSWER_DICTIONARY_2`, the one :func:`compress_answer` writes.
+_ANSWER_FORMAT_2 = 2
+
+#: The preset dictionary of format 2 (see the module's docstring). FROZEN: stored answers decode
+#: with it; tests/test_compression.py pins its digest.
+ANSWER_DICTIONARY_2 = (Path(__file__).resolve().parent / "data" / "answer_dictionary_2.bin").read_bytes()
+
+#: The dictionary of every format byte that was ever written.
+_ANSWER_DICTIONARIES = {_ANSWER_FORMAT_1: ANSWER_DICTIONARY_1, _ANSWER_FORMAT_2: ANSWER_DICTIONARY_2}
+
+
+#: A compressor primed with format 2's dictionary, copied for each answer: loading 32 KiB of
+#: dictionary cost more than deflating the answer (docs/benchmarks.md, ``answers``); the copy gives
+#: the same bytes. Never used itself (``copy`` holds the object's lock, so threads may share it).
+_PRIMED_COMPRESSOR_2 = zlib.compressobj(level=6, zdict=ANSWER_DICTIONARY_2)
+
+
 def compress_answer(answer: str) -> bytes:
-    """A scene's answer as stored: the format byte, then the zlib stream with the preset dictionary."""
-    compressor = zlib.compressobj(level=6, zdict=ANSWER_DICTIONARY_1)
-    return bytes([_ANSWER_FORMAT_1]) + compressor.compress(answer.encode()) + compressor.flush()
+    """A scene's answer as stored: the format byte (2), then the zlib stream with its preset dictionary."""
+    compressor = _PRIMED_COMPRESSOR_2.copy()
+    return bytes([_ANSWER_FORMAT_2]) + compressor.compress(answer.encode()) + compressor.flush()
 
 
 def decompress_answer(stored: bytes) -> str:
-    """The answer exactly as it was acknowledged (byte for byte)."""
-    if not stored or stored[0] != _ANSWER_FORMAT_1:
+    """The answer exactly as it was acknowledged (byte for byte), in whichever format it was stored."""
+    dictionary = _ANSWER_DICTIONARIES.get(stored[0]) if stored else None
+    if dictionary is None:
         raise ValueError(f"unknown stored answer format {stored[:1]!r}")
-    decompressor = zlib.decompressobj(zdict=ANSWER_DICTIONARY_1)
+    decompressor = zlib.decompressobj(zdict=dictionary)
     data = decompressor.decompress(stored[1:]) + decompressor.flush()
     return data.decode()
 

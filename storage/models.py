@@ -31,6 +31,7 @@ from sqlalchemy import (
     String,
     Table,
     UniqueConstraint,
+    text,
 )
 from sqlalchemy.dialects.postgresql import JSONB
 from sqlalchemy.engine import Dialect
@@ -151,16 +152,31 @@ class Word(Base):
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
 
 
+#: Only keyed scenes are indexed by key (alembic 0008): a scene posted without one is never looked up by it.
+_KEYED = text("idempotency_key IS NOT NULL")
+
+
 class Scene(Base):
     """One learned scene (an LDA document) and the answer it was acknowledged with."""
 
     __tablename__ = "scene"
-    __table_args__ = (UniqueConstraint("model_id", "idempotency_key"),)
+    __table_args__ = (
+        Index(
+            "ix_scene_model_id_idempotency_key",
+            "model_id",
+            "idempotency_key",
+            unique=True,
+            sqlite_where=_KEYED,
+            postgresql_where=_KEYED,
+        ),
+    )
 
     model_id: Mapped[str] = mapped_column(_model_fk(), primary_key=True)
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
     idempotency_key: Mapped[str | None] = mapped_column(String(200))
-    request_hash: Mapped[str] = mapped_column(String(64))
+    request_hash: Mapped[bytes | None] = mapped_column(LargeBinary)
+    """The SHA-256 digest (32 bytes) of the request body, which a retry under the same
+    ``idempotency_key`` must match; null for a scene posted without a key (nothing compares it)."""
     context_count: Mapped[int] = mapped_column(Integer)
     map_context: Mapped[int] = mapped_column(Integer)
     context_posterior: Mapped[list[Any]]

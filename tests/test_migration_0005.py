@@ -84,9 +84,9 @@ def test_upgrading_converts_old_answers_byte_for_byte_and_downgrading_restores_t
                     text(
                         "INSERT INTO scene (model_id, id, idempotency_key, request_hash, context_count, map_context, "
                         "context_posterior, answer, created_at) "
-                        "VALUES ('m', :id, :key, 'h', 2, 0, '[0.5, 0.5]', :answer, '2026-12-01 00:00:00')"
+                        "VALUES ('m', :id, :key, :hash, 2, 0, '[0.5, 0.5]', :answer, '2026-12-01 00:00:00')"
                     ),
-                    {"id": scene_id, "key": f"key-{scene_id}", "answer": answer},
+                    {"id": scene_id, "key": f"key-{scene_id}", "hash": f"{scene_id:064x}", "answer": answer},
                 )
             for token in TOKENS:
                 connection.execute(

@@ -2,14 +2,24 @@
 
 from __future__ import annotations
 
+import json
 import math
+from decimal import Decimal
+from typing import Any
 
 import numpy as np
 from fastapi.testclient import TestClient
-from sqlalchemy import Engine
+from sqlalchemy import Engine, text
 
-from app.schemas.scenes import SceneCreate, SceneRead
-from app.services.perception import SETTLED_WEBS_CACHED, Perception, SceneAnalysis, SettledWebs, analyse_objects
+from app.schemas.scenes import ANSWER_DECIMALS, SceneCreate, SceneRead
+from app.services.perception import (
+    SETTLED_WEBS_CACHED,
+    Perception,
+    SceneAnalysis,
+    SettledWebs,
+    analyse_objects,
+    reported,
+)
 from core.concept_web import ConceptWeb, WebInference
 from sim.world import World
 from storage.database import create_session_makers
@@ -128,20 +138,51 @@ def test_stored_counts_match_the_stored_assignments_and_memory(
     assert spoon and all(c["kind"] == "noun" for c in spoon)
 
 
+def _probabilities(answer: dict[str, Any]) -> list[float]:
+    stages = [obj[stage] or {} for obj in answer["objects"] for stage in ("perception", "web", "in_context")]
+    return [*answer["context_posterior"], *(p for stage in stages for p in stage.values())]
+
+
+def test_reported_probabilities_round_as_numpy_does_to_the_answers_decimals() -> None:
+    rng = np.random.default_rng(0)
+    halves = (np.arange(10_000) + 0.5) / 10**ANSWER_DECIMALS  # ties, and their nearest doubles
+    values = np.concatenate([rng.random(10_000), rng.random(1_000) * 1e-5, halves, [0.0, 1.0, 0.9999995, 1e-300]])
+    assert reported(values) == np.round(values, ANSWER_DECIMALS).tolist()
+    assert reported(values) == reported(reported(values))
+    assert all(Decimal(repr(p)).as_tuple().exponent >= -ANSWER_DECIMALS for p in reported(values))
+
+
 def test_a_fitted_models_answers_are_stored_exactly_as_their_schema_gives_them(
-    client: TestClient, model_id: str
+    client: TestClient, model_id: str, engine: Engine
 ) -> None:
     # The answer is built without validation (app/services/scenes.py): validating it must give it back unchanged.
     client.post(
         f"/v1/models/{model_id}/training-objects", json={"objects": synthetic_training_objects(World.paper(0), seed=1)}
     ).raise_for_status()
     client.post(f"/v1/models/{model_id}/fit", json={"method": "kmeans"}).raise_for_status()
-    unseen = {"objects": [{"concepts": {"cup": 0.7, "zebra": 0.9}, "kinds": {"zebra": "noun"}}]}
+    unseen = {"objects": [{"concepts": {"cup": 0.7, "zebra": 0.123456789}, "kinds": {"zebra": "noun"}}]}
     features = {"objects": [{"features": synthetic_training_objects(World.paper(0), seed=2)[0]["features"]}]}
-    for body in [*concept_scenes(6, seed=4), unseen, features]:
+    bodies = [*concept_scenes(6, seed=4), unseen, features]
+    answers = []
+    for body in bodies:
         response = client.post(f"/v1/models/{model_id}/scenes", json=body)
         assert response.status_code == 201
         assert SceneRead.model_validate_json(response.text).model_dump_json() == response.text
+        answers.append(response.text)
+    inferred = client.post(f"/v1/models/{model_id}/infer", json=bodies[0]).json()
+    history = client.get(f"/v1/models/{model_id}/scenes").json()["items"]
+    # Every reported probability is rounded to ANSWER_DECIMALS places (docs/api.md), and they are not all 0 or 1.
+    for answer in [*map(json.loads, answers), inferred]:
+        assert all(p == round(p, ANSWER_DECIMALS) for p in _probabilities(answer))
+        assert any(0.0 < p < 1.0 and p != round(p, ANSWER_DECIMALS - 2) for p in _probabilities(answer))
+    assert json.loads(answers[-2])["objects"][0]["perception"]["zebra"] == 0.123457
+    # The stored answers (format 2) replay byte for byte, and the history shows the same rounded posteriors.
+    for scene_id, answer in enumerate(answers):
+        assert client.get(f"/v1/models/{model_id}/scenes/{scene_id}").text == answer
+        assert history[scene_id]["context_posterior"] == json.loads(answer)["context_posterior"]
+    with engine.connect() as connection:
+        stored = connection.execute(text("SELECT answer_zlib FROM scene ORDER BY id")).scalars().all()
+    assert [bytes(row)[0] for row in stored] == [2] * len(answers)
 
 
 def _webs(analysis: SceneAnalysis) -> list[WebInference]:

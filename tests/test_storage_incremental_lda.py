@@ -102,7 +102,7 @@ def test_an_idempotency_key_is_unique_per_model(engine: Engine) -> None:
     lda = IncrementalLDA(seed=5, **FAST)
     _store_model(engine, lda)
     _, write = create_session_makers(engine)
-    row = {"request_hash": "h", "context_count": 1, "map_context": 0, "context_posterior": [1.0], "answer": "{}"}
+    row = {"request_hash": bytes(32), "context_count": 1, "map_context": 0, "context_posterior": [1.0], "answer": "{}"}
     with unit_of_work(write) as session:
         scene_repository.add_scene(session, "m", 0, idempotency_key="k", **row)
         scene_repository.add_scene(session, "m", 1, idempotency_key=None, **row)
@@ -111,7 +111,7 @@ def test_an_idempotency_key_is_unique_per_model(engine: Engine) -> None:
         scene_repository.add_scene(session, "m", 3, idempotency_key="k", **row)
     read, _ = create_session_makers(engine)
     with read() as session:
-        assert scene_repository.find_by_idempotency_key(session, "m", "k").scene_id == 0
+        assert scene_repository.find_by_idempotency_key(session, "m", "k") == (0, bytes(32), "{}")
         assert scene_repository.find_by_idempotency_key(session, "m", "other") is None
         rows, total = scene_repository.page_scenes(session, "m", offset=1, limit=5)
     assert total == 3 and [scene.id for scene in rows] == [1, 2]

@@ -36,8 +36,8 @@ def test_upgrading_twice_is_a_no_op_and_names_follow_the_convention(engine: Engi
     assert inspector.get_pk_constraint("token")["name"] == "pk_token"
     foreign_keys = {fk["name"] for fk in inspector.get_foreign_keys("scene")}
     assert foreign_keys == {"fk_scene_model_id_model"}
-    unique = {constraint["name"] for constraint in inspector.get_unique_constraints("scene")}
-    assert unique == {"uq_scene_model_id_idempotency_key"}
+    unique = {index["name"] for index in inspector.get_indexes("scene") if index["unique"]}
+    assert unique == {"ix_scene_model_id_idempotency_key"}
 
 
 @pytest.mark.postgres

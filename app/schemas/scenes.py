@@ -17,6 +17,10 @@ ObjectLevel = Literal["concepts", "features", "raw"]
 OBJECT_LEVELS: tuple[ObjectLevel, ...] = ("concepts", "features", "raw")
 MAX_OBJECTS_PER_SCENE = 64
 MAX_CONCEPTS_PER_OBJECT = 256
+#: Decimal places of every probability an answer reports (``context_posterior`` and the objects' stages):
+#: far below the sampler's and loopy BP's own accuracy, and most of a stored answer's bytes otherwise
+#: (docs/api.md, "Precision of answers").
+ANSWER_DECIMALS = 6
 
 ConceptNames = Annotated[list[Name], Field(min_length=1, max_length=MAX_CONCEPTS_PER_OBJECT)]
 ConceptProbabilities = Annotated[dict[Name, Probability], Field(min_length=1, max_length=MAX_CONCEPTS_PER_OBJECT)]
@@ -64,7 +68,8 @@ class SceneCreate(RequestSchema):
 
 
 class ObjectAnalysis(ReadSchema):
-    """One object's concept web: the probability of each concept at each stage of Fig. 6(b)."""
+    """One object's concept web: the probability of each concept at each stage of Fig. 6(b), rounded to
+    ``ANSWER_DECIMALS`` places."""
 
     level: ObjectLevel
     active_concepts: list[str] = Field(description="The MAP concepts: the words this object adds to the scene.")
@@ -80,7 +85,10 @@ class ObjectAnalysis(ReadSchema):
 
 
 class SceneRead(ReadSchema):
-    """The analysis of a scene: per-object concept webs and the context posterior P(χ | scene)."""
+    """The analysis of a scene: per-object concept webs and the context posterior P(χ | scene).
+
+    Every probability is rounded to ``ANSWER_DECIMALS`` places; ``map_context`` and the active
+    concepts are decided on the full-precision values."""
 
     model_config = ConfigDict(
         json_schema_extra={
@@ -113,8 +121,10 @@ class SceneRead(ReadSchema):
     learned: bool = Field(description="True when the model learned the scene, false for /infer.")
     context_count: int = Field(description="K after this scene.")
     previous_context_count: int = Field(description="K before this scene; larger K means a context was discovered.")
-    context_posterior: list[float] = Field(description="θ = P(χ | scene) over the K contexts.")
-    map_context: int = Field(description="The most probable context.")
+    context_posterior: list[float] = Field(
+        description="θ = P(χ | scene) over the K contexts, rounded to 6 decimal places (may not sum to 1 exactly)."
+    )
+    map_context: int = Field(description="The most probable context (decided before rounding).")
     map_context_label: str | None = Field(
         None, description="The most probable context's label as it stood when the scene was answered, or null."
     )

@@ -5,12 +5,14 @@ here they are checked against the model (known behaviours, fitted prototypes),
 turned into core's objects (raw payloads into ``core.payloads``, their problems
 reported at their place in the request) and sent through ``core.scene``:
 perception, concept webs, active concepts (:func:`analyse_objects`), then Eq. 6
-in context (:func:`in_context`). The answers' named probabilities are built here.
+in context (:func:`in_context`). The answers' named probabilities are built here,
+rounded once to ``ANSWER_DECIMALS`` places (:func:`reported`; docs/api.md, "Precision of
+answers"): the core's arrays, and every decision taken from them, keep full precision.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import TypeVar
 
@@ -18,7 +20,7 @@ import numpy as np
 
 from app.errors import InvalidInput, ModelNotFitted
 from app.schemas.observations import InteractionIn, ObjectFeatures, RawObject, as_array
-from app.schemas.scenes import ObjectLevel, SceneObject
+from app.schemas.scenes import ANSWER_DECIMALS, ObjectLevel, SceneObject
 from core.context.incremental import IncrementalLDA
 from core.errors import InvalidInputError
 from core.features.extract import recording_features
@@ -47,6 +49,7 @@ __all__ = [
     "feature_vectors",
     "in_context",
     "raw_feature_vectors",
+    "reported",
 ]
 
 PayloadT = TypeVar("PayloadT")
@@ -114,7 +117,7 @@ def _answered(vocabulary: Vocabulary, scene: PerceivedScene) -> SceneAnalysis:
         ObjectResult(
             level=obj.level,
             active_concepts=list(obj.active_concepts),
-            perception={**_named(concepts, obj.evidence.probabilities), **obj.evidence.unseen},
+            perception=_named(concepts, obj.evidence.probabilities) | _unseen(obj.evidence.unseen),
             web=None if obj.web is None else _named(concepts, obj.web.probabilities),
         )
         for obj in scene.objects
@@ -122,8 +125,25 @@ def _answered(vocabulary: Vocabulary, scene: PerceivedScene) -> SceneAnalysis:
     return SceneAnalysis(objects, scene)
 
 
+_SCALE = 10.0**ANSWER_DECIMALS
+
+
+def reported(probabilities: np.ndarray | Sequence[float]) -> list[float]:
+    """Probabilities as an answer reports them: rounded to ``ANSWER_DECIMALS`` places, as
+    ``np.round`` rounds (the scaled value to the nearest integer, halves to even), without its
+    per-call cost (an answer rounds ~15 short vectors); each prints with at most that many decimals."""
+    scaled = np.multiply(probabilities, _SCALE, dtype=np.float64)
+    return np.divide(np.rint(scaled, out=scaled), _SCALE, out=scaled).tolist()
+
+
 def _named(concepts: Sequence[str], values: np.ndarray) -> dict[str, float]:
-    return dict(zip(concepts, values.tolist(), strict=True))
+    """Probabilities by concept name, as reported (:func:`reported`)."""
+    return dict(zip(concepts, reported(values), strict=True))
+
+
+def _unseen(unseen: Mapping[str, float]) -> dict[str, float]:
+    """The given probabilities of names outside the vocabulary, as reported (:func:`reported`)."""
+    return dict(zip(unseen, reported(list(unseen.values())), strict=True)) if unseen else {}
 
 
 def _core_object(perception: Perception, obj: SceneObject, field: str, model_id: str) -> CoreObject:

@@ -43,7 +43,7 @@ from app.registry import ModelRuntime, jsonable
 from app.schemas.common import Page
 from app.schemas.scenes import ObjectAnalysis, SceneCreate, SceneRead, SceneSummary
 from app.services.limits import check_vocabulary_growth
-from app.services.perception import ObjectResult, Perception, SceneAnalysis, analyse_objects, in_context
+from app.services.perception import ObjectResult, Perception, SceneAnalysis, analyse_objects, in_context, reported
 from core.context.incremental import SceneUpdate
 from core.errors import InvalidInputError
 from storage.database import pipelined
@@ -59,7 +59,8 @@ class PreparedScene:
     """A scene analysed outside the model's lock (:func:`prepare_scene`), waiting for :func:`learn_scene`."""
 
     body: SceneCreate
-    request_hash: str
+    request_hash: bytes
+    """SHA-256 digest of the body (stored with a keyed scene, for its retries to match)."""
     perception: Perception
     """The perception the analysis used (compared by identity: a fit replaces it whole)."""
     analysis: SceneAnalysis | None
@@ -82,7 +83,7 @@ def prepare_scene(model: ModelRuntime, body: SceneCreate) -> PreparedScene:
     A refusal is kept, not raised: a retried scene's stored answer (Idempotency-Key) wins over it,
     as when the analysis ran under the lock."""
     perception = model.perception
-    request_hash = hashlib.sha256(body.model_dump_json().encode()).hexdigest()
+    request_hash = hashlib.sha256(body.model_dump_json().encode()).digest()
     try:
         analysis = analyse_objects(perception, body.objects, model.id)
     except (ContextwebError, InvalidInputError) as refusal:
@@ -143,7 +144,7 @@ def infer_scene(model: ModelRuntime, body: SceneCreate, session: Session | None 
         learned=False,
         context_count=context_count,
         previous_context_count=context_count,
-        context_posterior=posterior.tolist(),
+        context_posterior=reported(posterior),
         map_context=map_context,
         map_context_label=None if session is None else context_repository.context_label(session, model.id, map_context),
         objects=[_object_analysis(result) for result in analysis.objects],
@@ -221,7 +222,7 @@ def _answer(
         learned=True,
         context_count=int(update.contexts_after),
         previous_context_count=int(update.contexts_before),
-        context_posterior=posterior.tolist(),
+        context_posterior=reported(posterior),
         map_context=map_context,
         map_context_label=labels(map_context),
         objects=[
@@ -247,7 +248,7 @@ def _save(
     answer: SceneRead,
     answer_json: str,
     idempotency_key: str | None,
-    request_hash: str,
+    request_hash: bytes,
 ) -> None:
     first_word = len(model.word_kinds) - len(update.vocabulary_additions)
     with pipelined(session):  # PostgreSQL: the scene's statements in one round trip
@@ -266,7 +267,7 @@ def _save_rows(
     answer: SceneRead,
     answer_json: str,
     idempotency_key: str | None,
-    request_hash: str,
+    request_hash: bytes,
 ) -> None:
     lda_repository.save_scene(
         session,
@@ -294,7 +295,7 @@ def _save_rows(
         model.id,
         update.scene_index,
         idempotency_key=idempotency_key,
-        request_hash=request_hash,
+        request_hash=None if idempotency_key is None else request_hash,
         context_count=answer.context_count,
         map_context=answer.map_context,
         context_posterior=answer.context_posterior,

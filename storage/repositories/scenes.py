@@ -20,7 +20,7 @@ def add_scene(
     scene_id: int,
     *,
     idempotency_key: str | None,
-    request_hash: str,
+    request_hash: bytes | None,
     context_count: int,
     map_context: int,
     context_posterior: list[float],
@@ -61,7 +61,7 @@ class StoredAnswer(NamedTuple):
     """What a retried scene needs of the scene stored under its idempotency key."""
 
     scene_id: int
-    request_hash: str
+    request_hash: bytes
     answer: str
 
 
@@ -70,7 +70,7 @@ def find_by_idempotency_key(session: Session, model_id: str, key: str) -> Stored
     keyed scene (a robot's bridge keys them all), and the ORM's cost on PostgreSQL (docs/benchmarks.md)
     was not worth it."""
     row = DriverStatements(session).fetchone(_FIND_BY_KEY, (model_id, key))
-    return None if row is None else StoredAnswer(row[0], row[1], decompress_answer(bytes(row[2])))
+    return None if row is None else StoredAnswer(row[0], bytes(row[1]), decompress_answer(bytes(row[2])))
 
 
 _FIND_BY_KEY = "SELECT id, request_hash, answer_zlib FROM scene WHERE model_id = ? AND idempotency_key = ?"

@@ -22,6 +22,8 @@ from rosbags.typesys import Stores, get_typestore
 from app.cli import main
 from app.main import create_app
 from bridge import Client, RetryPolicy
+from bridge.errors import InvalidRecordingError
+from bridge.models import RawObject
 from bridge.tools import replay
 from bridge.tools.bags import (
     BagReplay,
@@ -34,10 +36,9 @@ from bridge.tools.bags import (
 )
 from bridge.tools.mapping import AudioStream, Haptics, Proprioception, parse_mapping
 from bridge.tools.segments import plan_from_markers, plan_from_windows
-from core.errors import InvalidInputError
 from core.payloads import Interaction, ObjectRecording, PointCloud
 from sim.world import World, WorldConfig
-from tests.conftest import make_settings, migrated_database, synthetic_training_objects
+from tests.conftest import decoded_recording, make_settings, migrated_database, synthetic_training_objects
 
 START = 1_700_000_000 * 1_000_000_000
 STEP = 1_000_000  # 1 ms between messages
@@ -181,9 +182,11 @@ def write_bag(path: Path, kind: str, scenes: list[list[ObjectRecording]], **opti
     return path
 
 
-def _assert_same_recordings(got: list[ObjectRecording], expected: list[ObjectRecording]) -> None:
+def _assert_same_recordings(got: list[RawObject], expected: list[ObjectRecording]) -> None:
+    """What the service decodes from the raw objects sent is the recordings (at float32, as sent)."""
     assert len(got) == len(expected)
-    for back, source in zip(got, expected, strict=True):
+    for raw, source in zip(got, expected, strict=True):
+        back = decoded_recording(raw)
         np.testing.assert_array_equal(back.look.points, source.look.points.astype(np.float32))
         theirs_by_behaviour = {i.behaviour: i for i in source.interactions}  # folders list behaviours sorted
         assert sorted(i.behaviour for i in back.interactions) == sorted(theirs_by_behaviour)
@@ -196,8 +199,10 @@ def _assert_same_recordings(got: list[ObjectRecording], expected: list[ObjectRec
                 assert mine.audio.sample_rate == theirs.audio.sample_rate
                 np.testing.assert_array_equal(mine.audio.samples, theirs.audio.samples)
             if theirs.finger is not None:
-                np.testing.assert_array_equal(mine.finger.haptic, theirs.finger.haptic)
-                np.testing.assert_array_equal(mine.finger.proprioceptive, theirs.finger.proprioceptive)
+                np.testing.assert_array_equal(mine.finger.haptic, theirs.finger.haptic.astype(np.float32))
+                np.testing.assert_array_equal(
+                    mine.finger.proprioceptive, theirs.finger.proprioceptive.astype(np.float32)
+                )
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -212,7 +217,7 @@ def test_a_bag_reads_back_the_recordings_a_folder_does(
         folder = tmp_path / f"scene_{number}"
         for index, recording in enumerate(recordings):
             replay.write_object(folder / f"object_{index}", recording)
-        from_folder = [obj.recording for obj in replay.read_scene(folder)]
+        from_folder = [decoded_recording(obj.raw) for obj in replay.read_scene(folder)]
         _assert_same_recordings(scene.recordings, from_folder)
         _assert_same_recordings(scene.recordings, recordings)
         assert [obj.name for obj in scene.plan.objects] == ["object_0", "object_1"]
@@ -288,7 +293,7 @@ def _error_after_posting(
     tmp_path: Path, world: World, service: TestClient, bag: Path, mapping: dict, posted: int
 ) -> str:
     model_id = _fitted_model(service, world)
-    with _bridge(service) as client, pytest.raises(InvalidInputError) as caught:
+    with _bridge(service) as client, pytest.raises(InvalidRecordingError) as caught:
         replay_bag(client, model_id, bag, parse_mapping(mapping))
     assert _scene_count(service, model_id) == posted
     return str(caught.value)
@@ -342,8 +347,9 @@ def test_an_organised_cloud_drops_its_nan_points(tmp_path: Path, scenes: list[li
             bag.marker("end cup grasp")
     with BagReplay(path, parse_mapping(MAPPING)) as replayed:
         (scene,) = replayed.scenes()
-    np.testing.assert_array_equal(scene.recordings[0].look.points, recording.look.points[5:].astype(np.float32))
-    assert scene.recordings[0].interactions[0].finger is None  # no finger messages in that window
+    back = decoded_recording(scene.recordings[0])
+    np.testing.assert_array_equal(back.look.points, recording.look.points[5:].astype(np.float32))
+    assert back.interactions[0].finger is None  # no finger messages in that window
 
 
 @pytest.mark.parametrize("kind", ["mcap", "ros1"])
@@ -370,7 +376,7 @@ def test_missing_messages_in_a_window_are_named_with_the_window(
         bag.cloud(scenes[0][0].look.points)
         bag.finger(0.5, 0.2)
         bag.marker("end")
-    with BagReplay(path, parse_mapping(MAPPING)) as replayed, pytest.raises(InvalidInputError) as caught:
+    with BagReplay(path, parse_mapping(MAPPING)) as replayed, pytest.raises(InvalidRecordingError) as caught:
         list(replayed.scenes())
     message = str(caught.value)
     assert "/object/points: no message in the 'grasp' window of object 'cup' after its before cloud" in message
@@ -393,11 +399,11 @@ def test_marker_grammar() -> None:
         "end": "no interaction is open",
     }
     for text, problem in bad.items():
-        with pytest.raises(InvalidInputError, match=problem):
+        with pytest.raises(InvalidRecordingError, match=problem):
             plan_from_markers([(5, text)], 0, 30, "/markers")
-    with pytest.raises(InvalidInputError, match=r"'end ball grasp' at t = 0.000 s \(stamp 3 ns\).*'cup' 'grasp'"):
+    with pytest.raises(InvalidRecordingError, match=r"'end ball grasp' at t = 0.000 s \(stamp 3 ns\).*'cup' 'grasp'"):
         plan_from_markers([(1, "look cup"), (2, "begin cup grasp"), (3, "end ball grasp")], 3, 30, "/markers")
-    with pytest.raises(InvalidInputError, match="ends before its end marker"):
+    with pytest.raises(InvalidRecordingError, match="ends before its end marker"):
         plan_from_markers([(1, "look cup"), (2, "begin cup grasp")], 0, 30, "/markers")
 
 
@@ -419,7 +425,7 @@ def test_message_decoders() -> None:
     stereo = AudioStream("/audio", 16000, channels=2)
 
     def fail(what: str) -> Exception:
-        return InvalidInputError("msg", what)
+        return InvalidRecordingError("msg", what)
 
     np.testing.assert_allclose(audio_samples(audio, stereo, fail), [0.25, -0.5 + 0.5 * 32767 / 32768])
     joints = types["sensor_msgs/msg/JointState"](
@@ -427,7 +433,7 @@ def test_message_decoders() -> None:
         name=["a", "b"], position=np.array([0.0, 90.0]), velocity=np.zeros(2), effort=np.zeros(2),
     )  # fmt: skip
     assert joint_angle(joints, Proprioception("/j", "b", unit="deg"), fail) == pytest.approx(np.pi / 2)
-    with pytest.raises(InvalidInputError, match=r"no joint 'c' \(joints: \['a', 'b'\]\)"):
+    with pytest.raises(InvalidRecordingError, match=r"no joint 'c' \(joints: \['a', 'b'\]\)"):
         joint_angle(joints, Proprioception("/j", "c"), fail)
     vector = types["geometry_msgs/msg/Vector3"]
     wrench = types["geometry_msgs/msg/WrenchStamped"](
@@ -448,7 +454,7 @@ def test_mapping_errors_name_the_key(tmp_path: Path) -> None:
     }
     for field, table in cases.items():
         table = {key: value for key, value in table.items() if value is not None}
-        with pytest.raises(InvalidInputError) as caught:
+        with pytest.raises(InvalidRecordingError) as caught:
             parse_mapping(table)
         assert caught.value.field == field
 
@@ -468,7 +474,7 @@ def test_the_service_never_imports_rosbags_and_a_missing_install_says_what_to_do
         [sys.executable, "-c", code, str(bag)], check=False, capture_output=True, text=True, timeout=120
     )
     assert result.returncode == 0, result.stderr
-    assert "pip install 'contextweb[bags]'" in result.stdout
+    assert "pip install './bridge[bags]'" in result.stdout and "'contextweb[bags]'" in result.stdout
 
 
 def test_replay_cli_detects_bags_and_reports_errors_without_a_traceback(
@@ -507,8 +513,8 @@ def test_a_scene_body_depends_only_on_the_seed_and_its_key(tmp_path: Path, scene
         BagReplay(bag, parse_mapping(MAPPING)) as replayed,
     ):
         plans = replayed.plans()
-        post_scenes(client, "m", replayed.scenes(plans), seed=1, max_points=50)
-        post_scenes(client, "m", replayed.scenes(plans[1:]), seed=1, max_points=50)
+        post_scenes(client, "m", replayed.scenes(plans, seed=1, max_points=50))
+        post_scenes(client, "m", replayed.scenes(plans[1:], seed=1, max_points=50))
         second = bodies[next(replayed.scenes(plans[1:])).key]
     assert len(second) == 2 and second[0] == second[1]
     assert len(bodies) == 2

@@ -3,7 +3,7 @@
 Bags are read with ``rosbags`` (Apache-2.0, pure Python, no ROS install),
 imported only inside these functions: the service never imports it, and the
 bridge works without it until a bag is replayed (``pip install
-'contextweb[bags]'``). A mapping file (:mod:`bridge.tools.mapping`) says which topic
+'./bridge[bags]'`` on a robot, ``'contextweb[bags]'`` with the server). A mapping file (:mod:`bridge.tools.mapping`) says which topic
 carries what; markers or a fixed schedule (:mod:`bridge.tools.segments`) cut the bag
 into scenes, objects and interactions. Within an interaction window:
 
@@ -28,13 +28,16 @@ import json
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Self
+from typing import TYPE_CHECKING, Any, Self, TypeVar
 
 import numpy as np
 
 from bridge.client import Client, QueuedScene
-from bridge.models import SceneObject, SceneRead
+from bridge.errors import InvalidRecordingError
+from bridge.models import Audio, Finger, Interaction, PointCloud, RawObject, SceneObject, SceneRead
+from bridge.tools import payloads
 from bridge.tools.mapping import AudioStream, Haptics, Mapping, Proprioception
+from bridge.tools.payloads import DEFAULT_MAX_POINTS
 from bridge.tools.segments import (
     InteractionPlan,
     ObjectPlan,
@@ -47,16 +50,17 @@ from bridge.tools.segments import (
     plan_from_markers,
     plan_from_windows,
 )
-from bridge.tools.simulate import DEFAULT_MAX_POINTS, raw_object
-from core.errors import InvalidInputError
-from core.payloads import Audio, Interaction, ObjectRecording, PointCloud
 
 if TYPE_CHECKING:
     from rosbags.highlevel import AnyReader
     from rosbags.interfaces import Connection
     from rosbags.typesys.store import Typestore
 
-INSTALL_HINT = "reading ROS bags needs the rosbags package: pip install 'contextweb[bags]'"
+PayloadT = TypeVar("PayloadT")
+INSTALL_HINT = (
+    "reading ROS bags needs the rosbags package: pip install 'contextweb-bridge[bags]' on a robot "
+    "(pip install './bridge[bags]' from a checkout), or 'contextweb[bags]' with the server"
+)
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 
 #: audio_common's messages (ROS 1 audio_common, ROS 2 audio_common ports): not in rosbags' stores.
@@ -119,7 +123,7 @@ class BagReplay:
         try:
             self._reader.open()
         except Exception as error:  # noqa: BLE001 - rosbags, apsw, lz4 and zstd each raise their own errors
-            raise InvalidInputError(str(self.path), f"cannot be opened as a ROS bag: {_describe(error)}") from None
+            raise InvalidRecordingError(str(self.path), f"cannot be opened as a ROS bag: {_describe(error)}") from None
         self.start, self.stop = self._reader.start_time, self._reader.end_time
         self._connections = self._check_topics()
         return self
@@ -140,20 +144,28 @@ class BagReplay:
             return plan_from_windows(self.mapping.windows, self.start, self.stop)
         topic = self.mapping.markers
         if topic is None:
-            raise InvalidInputError("mapping.segmentation", "needs exactly one of markers (a stream) or windows")
+            raise InvalidRecordingError("mapping.segmentation", "needs exactly one of markers (a stream) or windows")
         markers = [(m.time, str(self._decode(m).data)) for m in self._messages([topic], Window(self.start, self.stop))]
         return plan_from_markers(markers, self.start, self.stop, f"{self.path} {topic}")
 
-    def scenes(self, plans: Sequence[ScenePlan] | None = None) -> Iterator[SegmentedScene]:
-        """Each scene read whole and checked (nothing of a bad scene is returned)."""
+    def scenes(
+        self, plans: Sequence[ScenePlan] | None = None, *, seed: int = 0, max_points: int = DEFAULT_MAX_POINTS
+    ) -> Iterator[SegmentedScene]:
+        """Each scene read whole, checked and encoded (nothing of a bad scene is returned).
+
+        Clouds are subsampled to ``max_points`` by a generator seeded by ``seed`` and the scene's key
+        (:func:`scene_rng`), so a scene's body does not depend on the scenes replayed before it.
+        """
         identity = self.identity
         topics = sorted({stream for role, stream in self.mapping.streams.items() if role != "segmentation.markers"})
         for plan in self.plans() if plans is None else plans:
             by_topic: dict[str, list[Message]] = {topic: [] for topic in topics}
             for message in self._messages(topics, plan.window):
                 by_topic[message.topic].append(message)
-            recordings = [self._recording(obj, by_topic) for obj in plan.objects]
-            yield SegmentedScene(plan, recordings, f"bag-{identity}-{plan.window.start}")
+            key = f"bag-{identity}-{plan.window.start}"
+            rng = scene_rng(seed, key)
+            recordings = [self._recording(obj, by_topic, rng, max_points) for obj in plan.objects]
+            yield SegmentedScene(plan, recordings, key)
 
     def _check_topics(self) -> dict[str, list[Connection]]:
         mapping = self.mapping
@@ -171,12 +183,12 @@ class BagReplay:
             found = [c for c in self._reader.connections if c.topic == topic]
             if not found:
                 present = ", ".join(sorted({c.topic for c in self._reader.connections}))
-                raise InvalidInputError(
+                raise InvalidRecordingError(
                     f"{self.path} {topic}", f"topic missing from the bag (mapping {role}); the bag has: {present}"
                 )
             wrong = sorted({c.msgtype for c in found} - set(expected[role]))
             if wrong:
-                raise InvalidInputError(
+                raise InvalidRecordingError(
                     f"{self.path} {topic}",
                     f"carries {', '.join(wrong)}, but mapping {role} needs {' or '.join(expected[role])}",
                 )
@@ -192,7 +204,7 @@ class BagReplay:
                 yield Message(connection.topic, time, connection, raw)
                 last = f"the message at {format_time(time, self.start)} on {connection.topic}"
         except Exception as error:  # noqa: BLE001 - a damaged file fails inside rosbags, apsw, lz4 or zstd
-            raise InvalidInputError(
+            raise InvalidRecordingError(
                 str(self.path), f"cannot be read after {last} (truncated or damaged file?): {_describe(error)}"
             ) from None
 
@@ -202,24 +214,36 @@ class BagReplay:
         except Exception as error:  # noqa: BLE001 - rosbags' deserialisers raise several kinds
             raise self._problem(message, f"cannot be decoded as {message.connection.msgtype}: {_describe(error)}")
 
-    def _problem(self, message: Message, what: str) -> InvalidInputError:
-        return InvalidInputError(
+    def _problem(self, message: Message, what: str) -> InvalidRecordingError:
+        return InvalidRecordingError(
             f"{self.path} {message.topic}", f"message at {format_time(message.time, self.start)}: {what}"
         )
 
-    def _missing(self, topic: str, window: Window, what: str) -> InvalidInputError:
+    def _missing(self, topic: str, window: Window, what: str) -> InvalidRecordingError:
         span = f"{format_time(window.start, self.start)} to {format_time(window.stop, self.start)}"
-        return InvalidInputError(f"{self.path} {topic}", f"no message in {what} ({span})")
+        return InvalidRecordingError(f"{self.path} {topic}", f"no message in {what} ({span})")
 
-    def _recording(self, obj: ObjectPlan, by_topic: dict[str, list[Message]]) -> ObjectRecording:
+    def _recording(
+        self, obj: ObjectPlan, by_topic: dict[str, list[Message]], rng: np.random.Generator, max_points: int
+    ) -> RawObject:
         clouds = self.mapping.clouds
         looks = _within(by_topic[clouds.look], obj.look)
         if not looks:
             raise self._missing(clouds.look, obj.look, f"the look window of object {obj.name!r}")
-        interactions = tuple(self._interaction(obj, interaction, by_topic) for interaction in obj.interactions)
-        return ObjectRecording(look=self._cloud(looks[-1]), interactions=interactions)
+        look = self._cloud(looks[-1], rng, max_points)  # drawn first: the order of the subsampling draws
+        interactions = [
+            self._interaction(obj, interaction, by_topic, rng, max_points) for interaction in obj.interactions
+        ]
+        return RawObject(look=look, interactions=interactions)
 
-    def _interaction(self, obj: ObjectPlan, plan: InteractionPlan, by_topic: dict[str, list[Message]]) -> Interaction:
+    def _interaction(
+        self,
+        obj: ObjectPlan,
+        plan: InteractionPlan,
+        by_topic: dict[str, list[Message]],
+        rng: np.random.Generator,
+        max_points: int,
+    ) -> Interaction:
         clouds = self.mapping.clouds
         what = f"the {plan.behaviour!r} window of object {obj.name!r}"
         befores = _within(by_topic[clouds.before], plan.window)
@@ -230,15 +254,16 @@ class BagReplay:
             raise self._missing(clouds.after, plan.window, f"{what} after its before cloud")
         return Interaction(
             behaviour=plan.behaviour,
-            before=self._cloud(befores[0]),
-            after=self._cloud(afters[-1]),
+            before=self._cloud(befores[0], rng, max_points),
+            after=self._cloud(afters[-1], rng, max_points),
             audio=self._audio(self.mapping.audio, plan, by_topic),
             finger=self._finger(plan, by_topic, what),
         )
 
-    def _cloud(self, message: Message) -> PointCloud:
+    def _cloud(self, message: Message, rng: np.random.Generator, max_points: int) -> PointCloud:
         points = point_cloud_points(self._decode(message), lambda what: self._problem(message, what))
-        return _payload(lambda: PointCloud(points * self.mapping.clouds.scale), self._problem, message)
+        scaled = points * self.mapping.clouds.scale
+        return _payload(lambda: payloads.cloud(scaled, rng, max_points), self._problem, message)
 
     def _audio(
         self, stream: AudioStream | None, plan: InteractionPlan, by_topic: dict[str, list[Message]]
@@ -249,9 +274,9 @@ class BagReplay:
         if not messages:
             return None
         chunks = [audio_samples(self._decode(m), stream, functools.partial(self._problem, m)) for m in messages]
-        return _payload(lambda: Audio(np.concatenate(chunks), stream.sample_rate), self._problem, messages[0])
+        return _payload(lambda: payloads.audio(np.concatenate(chunks), stream.sample_rate), self._problem, messages[0])
 
-    def _finger(self, plan: InteractionPlan, by_topic: dict[str, list[Message]], what: str) -> Any:
+    def _finger(self, plan: InteractionPlan, by_topic: dict[str, list[Message]], what: str) -> Finger | None:
         joint, haptics = self.mapping.proprioception, self.mapping.haptics
         if (
             joint is None
@@ -268,11 +293,8 @@ class BagReplay:
                 raise self._missing(topic, plan.window, f"{what}, though its other finger topic has messages")
         angles = [joint_angle(self._decode(m), joint, functools.partial(self._problem, m)) for m in joints]
         pressures = [haptic_value(self._decode(m), haptics, functools.partial(self._problem, m)) for m in touches]
-        return _payload(
-            lambda: finger_series([m.time for m in joints], angles, [m.time for m in touches], pressures),
-            self._problem,
-            joints[0],
-        )
+        series = finger_series([m.time for m in joints], angles, [m.time for m in touches], pressures)
+        return _payload(lambda: payloads.finger(*series), self._problem, joints[0])
 
 
 def point_cloud_points(message: Any, problem: Callable[[str], Exception]) -> np.ndarray:
@@ -376,8 +398,8 @@ def replay_bag(
 ) -> list[SceneRead | QueuedScene]:
     """Post the bag's scenes in order (the first ``limit`` only, when given), each with its key."""
     with BagReplay(path, mapping) as bag:
-        scenes = bag.scenes(bag.plans()[:limit])
-        return post_scenes(client, model_id, scenes, seed=seed, max_points=max_points, on_answer=on_answer)
+        scenes = bag.scenes(bag.plans()[:limit], seed=seed, max_points=max_points)
+        return post_scenes(client, model_id, scenes, on_answer=on_answer)
 
 
 def post_scenes(
@@ -385,33 +407,28 @@ def post_scenes(
     model_id: str,
     scenes: Iterable[SegmentedScene],
     *,
-    seed: int,
-    max_points: int,
     on_answer: Callable[[SegmentedScene, SceneRead | QueuedScene], None] | None = None,
 ) -> list[SceneRead | QueuedScene]:
-    """Post each scene as soon as it is read and checked: a bad scene stops the replay before it is sent."""
+    """Post each scene under its key as soon as it is read and checked: a bad scene stops the replay
+    before it is sent."""
     answers = []
     for scene in scenes:
-        answer = post_scene(client, model_id, scene.recordings, scene.key, seed=seed, max_points=max_points)
+        objects = [SceneObject(raw=raw) for raw in scene.recordings]
+        answer = client.scenes.create(model_id, objects, idempotency_key=scene.key)
         answers.append(answer)
         if on_answer is not None:
             on_answer(scene, answer)
     return answers
 
 
-def post_scene(
-    client: Client, model_id: str, recordings: Sequence[ObjectRecording], key: str, *, seed: int, max_points: int
-) -> SceneRead | QueuedScene:
-    """Post recordings as one raw scene under ``key``.
+def scene_rng(seed: int, key: str) -> np.random.Generator:
+    """The subsampling generator of one scene, seeded by the replay's seed and the scene's key.
 
-    The subsampling generator is seeded by the seed and the key, so a restarted
-    replay sends the very same body and the service answers with the stored
-    scene instead of refusing a reused key.
+    A restarted replay sends the very same body under each key, so the service answers with the
+    stored scene instead of refusing a reused key.
     """
     digest = int.from_bytes(hashlib.sha256(key.encode()).digest()[:8], "big")
-    rng = np.random.default_rng([seed, digest])
-    objects = [SceneObject(raw=raw_object(recording, rng, max_points)) for recording in recordings]
-    return client.scenes.create(model_id, objects, idempotency_key=key)
+    return np.random.default_rng([seed, digest])
 
 
 def _open(path: Path) -> AnyReader:
@@ -420,7 +437,7 @@ def _open(path: Path) -> AnyReader:
     except ImportError:
         raise ImportError(INSTALL_HINT) from None
     if not path.exists():
-        raise InvalidInputError(str(path), "does not exist")
+        raise InvalidRecordingError(str(path), "does not exist")
     return AnyReader([path], default_typestore=audio_typestore())
 
 
@@ -428,11 +445,11 @@ def _within(messages: Sequence[Message], window: Window) -> list[Message]:
     return [message for message in messages if window.holds(message.time)]
 
 
-def _payload(build: Callable[[], Any], problem: Callable[[Message, str], Exception], message: Message) -> Any:
-    """Build a core payload; its validation error is re-raised naming the topic and time."""
+def _payload(build: Callable[[], PayloadT], problem: Callable[[Message, str], Exception], message: Message) -> PayloadT:
+    """Check and encode a payload (:mod:`bridge.tools.payloads`); its error is re-raised naming the topic and time."""
     try:
         return build()
-    except InvalidInputError as error:
+    except InvalidRecordingError as error:
         raise problem(message, str(error)) from None
 
 

@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bridge.errors import InvalidRecordingError
+from bridge.models import RawObject
 from bridge.tools.mapping import Windows
-from core.errors import InvalidInputError
-from core.payloads import FingerSeries, ObjectRecording
 
 NANOSECONDS = 1_000_000_000
 
@@ -62,10 +62,10 @@ class ScenePlan:
 
 @dataclass(frozen=True)
 class SegmentedScene:
-    """One scene cut from a recording, read and checked: its plan, recordings and idempotency key."""
+    """One scene cut from a recording, read, checked and encoded: its plan, raw objects and idempotency key."""
 
     plan: ScenePlan
-    recordings: list[ObjectRecording]
+    recordings: list[RawObject]
     key: str
 
 
@@ -86,8 +86,8 @@ def plan_from_markers(markers: Iterable[tuple[int, str]], start: int, stop: int,
     looking: ObjectPlan | None = None
     open_interaction: tuple[int, ObjectPlan, str] | None = None
 
-    def problem(time: int, text: str, what: str) -> InvalidInputError:
-        return InvalidInputError(stream, f"marker {text!r} at {format_time(time, start)}: {what}")
+    def problem(time: int, text: str, what: str) -> InvalidRecordingError:
+        return InvalidRecordingError(stream, f"marker {text!r} at {format_time(time, start)}: {what}")
 
     def close_look(time: int) -> None:
         nonlocal looking
@@ -162,8 +162,9 @@ def plan_from_windows(schedule: Windows, start: int, stop: int) -> list[ScenePla
 
 def finger_series(
     joint_times: Sequence[int], angles: Sequence[float], touch_times: Sequence[int], pressures: Sequence[float]
-) -> FingerSeries:
-    """One finger sample per joint reading, the haptic value linearly interpolated at its instant.
+) -> tuple[np.ndarray, np.ndarray]:
+    """Haptic and proprioceptive series: one sample per joint reading, the haptic value linearly
+    interpolated at its instant.
 
     A tactile sensor and the joint encoders are rarely sampled together;
     interpolating the haptic series onto the joint's clock keeps the joint's
@@ -171,4 +172,4 @@ def finger_series(
     haptic readings' span).
     """
     haptic = np.interp(np.asarray(joint_times, dtype=np.float64), np.asarray(touch_times, dtype=np.float64), pressures)
-    return FingerSeries(haptic, np.asarray(angles, dtype=np.float64))
+    return haptic, np.asarray(angles, dtype=np.float64)

@@ -4,6 +4,7 @@ restart, and fail on bad bags with errors naming the topic and the time, posting
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -14,6 +15,7 @@ import httpx
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from rosbags.highlevel import AnyReader
 from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Ros2Writer
@@ -352,16 +354,55 @@ def test_an_organised_cloud_drops_its_nan_points(tmp_path: Path, scenes: list[li
     assert back.interactions[0].finger is None  # no finger messages in that window
 
 
-@pytest.mark.parametrize("kind", ["mcap", "ros1"])
-def test_a_truncated_bag_is_refused_naming_the_file(
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_truncated_bag_posts_its_whole_scenes_once_and_refuses_the_cut_one(
     tmp_path: Path, kind: str, world: World, scenes: list[list[ObjectRecording]], service: TestClient
 ) -> None:
+    """A recorder killed mid-write: the bag is cut at several offsets (rosbags cannot open any of them).
+    The scenes before the cut are posted, each once across restarts; the scene the cut falls in is
+    refused naming the last message read (a real message of the bag); the repaired bag posts the rest."""
     bag = write_bag(tmp_path, kind, scenes)
-    data_file = bag if kind == "ros1" else next(bag.glob("*.mcap"))
+    data_file = bag if kind == "ros1" else next(bag.glob("*.mcap" if kind == "mcap" else "*.db3"))
     content = data_file.read_bytes()
-    data_file.write_bytes(content[: len(content) * 3 // 5])
-    message = _error_after_posting(tmp_path, world, service, bag, MAPPING, posted=0)
-    assert message.startswith(str(bag)) and ("cannot be opened as a ROS bag" in message or "truncated" in message)
+    with AnyReader([bag], default_typestore=audio_typestore()) as reader:
+        recorded = {(connection.topic, time) for connection, time, _ in reader.messages()}
+    with BagReplay(bag, parse_mapping(MAPPING)) as whole:
+        scene_starts = [plan.window.start for plan in whole.plans()]
+    model_id = _fitted_model(service, world)
+    answers = []
+    for fraction, posted in ((0.3, 0), (0.7, 1), (0.7, 1)):  # the second 0.7: a restart
+        data_file.write_bytes(content[: int(len(content) * fraction)])
+        with _bridge(service) as client, pytest.raises(InvalidRecordingError) as caught:
+            replay_bag(client, model_id, bag, parse_mapping(MAPPING), on_answer=lambda _, a: answers.append(a))
+        assert _scene_count(service, model_id) == posted, fraction
+        found = re.fullmatch(
+            rf"{re.escape(str(bag))} (\S+): message at t = [0-9.]+ s \(stamp (\d+) ns\) is the last one read: "
+            rf"the file ends [^;]+; scene {posted} \(from t = [0-9.]+ s \(stamp (\d+) ns\)\) is cut "
+            r"and not posted",
+            str(caught.value),
+        )
+        assert found is not None, str(caught.value)
+        topic, stamp, scene_start = found[1], int(found[2]), int(found[3])
+        assert (topic, stamp) in recorded and scene_start == scene_starts[posted] <= stamp
+    # Repaired (or, for MCAP, cut inside its footer: every message is read): the same keys, so only the
+    # cut scene is learned now.
+    data_file.write_bytes(content[:-10] if kind == "mcap" else content)
+    with _bridge(service) as client:
+        replayed = replay_bag(client, model_id, bag, parse_mapping(MAPPING))
+    assert _scene_count(service, model_id) == 2
+    assert [answer.scene_id for answer in answers] == [0, 0] and replayed[0] == answers[0]
+
+
+def test_a_bag_cut_before_its_first_message_is_refused_naming_the_file(
+    tmp_path: Path, scenes: list[list[ObjectRecording]]
+) -> None:
+    bag = write_bag(tmp_path, "mcap", scenes[:1])
+    data_file = next(bag.glob("*.mcap"))
+    data_file.write_bytes(data_file.read_bytes()[:30])
+    with pytest.raises(InvalidRecordingError) as caught, BagReplay(bag, parse_mapping(MAPPING)):
+        pass
+    assert str(caught.value).startswith(f"{bag}: cannot be opened as a ROS bag: ")
+    assert "read from its start: the file ends inside a record (at byte 8)" in str(caught.value)
 
 
 def test_missing_messages_in_a_window_are_named_with_the_window(

@@ -50,6 +50,7 @@ from bridge.tools.segments import (
     plan_from_markers,
     plan_from_windows,
 )
+from bridge.tools.truncated import Channel, TruncatedBag
 
 if TYPE_CHECKING:
     from rosbags.highlevel import AnyReader
@@ -84,7 +85,7 @@ class Message:
 
     topic: str
     time: int
-    connection: Connection
+    connection: Connection | Channel
     raw: bytes
 
 
@@ -117,13 +118,17 @@ class BagReplay:
     def __init__(self, path: Path, mapping: Mapping) -> None:
         self.path = path
         self.mapping = mapping
-        self._reader = _open(path)
+        self._opened = _open(path)
+        self._reader: AnyReader | TruncatedBag = self._opened
+        self._plans: list[ScenePlan] | None = None
+        #: Where a truncated bag ends ("the file ends inside a chunk ..."); None for a whole bag.
+        self.cut: str | None = None
 
     def __enter__(self) -> Self:
         try:
-            self._reader.open()
+            self._opened.open()
         except Exception as error:  # noqa: BLE001 - rosbags, apsw, lz4 and zstd each raise their own errors
-            raise InvalidRecordingError(str(self.path), f"cannot be opened as a ROS bag: {_describe(error)}") from None
+            self._reader = self._salvage(error)
         self.start, self.stop = self._reader.start_time, self._reader.end_time
         self._connections = self._check_topics()
         return self
@@ -131,22 +136,52 @@ class BagReplay:
     def __exit__(self, *exc_info: object) -> None:
         self._reader.close()
 
+    def _salvage(self, error: Exception) -> TruncatedBag:
+        """A bag rosbags cannot open, read from its start up to its cut (:mod:`bridge.tools.truncated`)."""
+        from bridge.tools.truncated import salvage_bag
+
+        refused = InvalidRecordingError(str(self.path), f"cannot be opened as a ROS bag: {_describe(error)}")
+        try:
+            bag = salvage_bag(self.path, set(self.mapping.streams.values()), _default_typestore)
+        except Exception as salvage_error:  # noqa: BLE001 - a file that is no bag at all fails in many ways
+            raise InvalidRecordingError(
+                refused.field, f"{refused.problem}; read from its start: {salvage_error}"
+            ) from None
+        if bag.salvage.last is None:
+            problem = bag.salvage.problem or "it holds no message"
+            raise InvalidRecordingError(refused.field, f"{refused.problem}; read from its start: {problem}") from None
+        self.cut = bag.salvage.problem
+        return bag
+
     @property
     def identity(self) -> str:
-        """A digest of the bag's content summary: the same bag copied or moved keeps its keys."""
-        topics = sorted((name, info.msgtype, info.msgcount) for name, info in self._reader.topics.items())
-        summary = [self.start, self.stop, self._reader.message_count, topics]
-        return hashlib.sha256(json.dumps(summary).encode()).hexdigest()[:24]
+        """A digest of what every readable copy of the bag begins with: its first message time, its topics
+        with their types, and the messages of that first instant.
+
+        The same bag copied, moved, opened as its bare storage file, or cut short (a truncated copy and
+        the same bag repaired) keeps its keys; two bags that start at the same instant on the same topics
+        (simulated clocks) differ by their first messages.
+        """
+        topics = sorted({(c.topic, c.msgtype) for c in self._reader.connections})
+        every: list[Any] = list(self._reader.connections)
+        messages = self._reader.messages(every, self.start, self.start + 1)
+        first = sorted((topic.topic, hashlib.sha256(raw).hexdigest()) for topic, _, raw in messages)
+        return hashlib.sha256(json.dumps([self.start, topics, first]).encode()).hexdigest()[:24]
 
     def plans(self) -> list[ScenePlan]:
-        """The bag's scenes, from its markers or the mapping's schedule."""
+        """The bag's scenes, from its markers or the mapping's schedule (a truncated bag's up to its cut)."""
+        if self._plans is None:
+            self._plans = self._segment()
+        return self._plans
+
+    def _segment(self) -> list[ScenePlan]:
         if self.mapping.windows is not None:
             return plan_from_windows(self.mapping.windows, self.start, self.stop)
         topic = self.mapping.markers
         if topic is None:
             raise InvalidRecordingError("mapping.segmentation", "needs exactly one of markers (a stream) or windows")
         markers = [(m.time, str(self._decode(m).data)) for m in self._messages([topic], Window(self.start, self.stop))]
-        return plan_from_markers(markers, self.start, self.stop, f"{self.path} {topic}")
+        return plan_from_markers(markers, self.start, self.stop, f"{self.path} {topic}", cut=self.cut is not None)
 
     def scenes(
         self, plans: Sequence[ScenePlan] | None = None, *, seed: int = 0, max_points: int = DEFAULT_MAX_POINTS
@@ -158,16 +193,21 @@ class BagReplay:
         """
         identity = self.identity
         topics = sorted({stream for role, stream in self.mapping.streams.items() if role != "segmentation.markers"})
-        for plan in self.plans() if plans is None else plans:
+        chosen = self.plans() if plans is None else plans
+        for plan in chosen:
+            if self.cut is not None and plan.window.stop >= self.stop:  # the scene reaches the last message read
+                raise self._cut_error(plan)
             by_topic: dict[str, list[Message]] = {topic: [] for topic in topics}
-            for message in self._messages(topics, plan.window):
+            for message in self._messages(topics, plan.window, plan):
                 by_topic[message.topic].append(message)
             key = f"bag-{identity}-{plan.window.start}"
             rng = scene_rng(seed, key)
             recordings = [self._recording(obj, by_topic, rng, max_points) for obj in plan.objects]
             yield SegmentedScene(plan, recordings, key)
+        if self.cut is not None and (not self.plans() or chosen[-1:] == self.plans()[-1:]):
+            raise self._cut_error(None)  # a schedule keeps only whole objects: the cut one was never planned
 
-    def _check_topics(self) -> dict[str, list[Connection]]:
+    def _check_topics(self) -> dict[str, list[Connection | Channel]]:
         mapping = self.mapping
         expected = {
             "clouds.look": CLOUD_TYPES,
@@ -178,7 +218,7 @@ class BagReplay:
             "haptics": HAPTIC_TYPES,
             "segmentation.markers": MARKER_TYPES,
         }
-        connections: dict[str, list[Connection]] = {}
+        connections: dict[str, list[Connection | Channel]] = {}
         for role, topic in mapping.streams.items():
             found = [c for c in self._reader.connections if c.topic == topic]
             if not found:
@@ -195,18 +235,41 @@ class BagReplay:
             connections[topic] = found
         return connections
 
-    def _messages(self, topics: Sequence[str], window: Window) -> Iterator[Message]:
+    def _messages(self, topics: Sequence[str], window: Window, plan: ScenePlan | None = None) -> Iterator[Message]:
         """Messages of ``topics`` in ``window``; a read failure names the last message read well."""
         connections = [c for topic in topics for c in self._connections[topic]]
-        last = f"the start of the window at {format_time(window.start, self.start)}"
+        last: tuple[str, int] | None = None
+        # Each reader is given back the connections it listed (_check_topics): rosbags' or a salvage's.
+        messages = self._reader.messages(connections, window.start, window.stop + 1)  # type: ignore[arg-type]
         try:
-            for connection, time, raw in self._reader.messages(connections, window.start, window.stop + 1):
+            for connection, time, raw in messages:
                 yield Message(connection.topic, time, connection, raw)
-                last = f"the message at {format_time(time, self.start)} on {connection.topic}"
+                last = (connection.topic, time)
         except Exception as error:  # noqa: BLE001 - a damaged file fails inside rosbags, apsw, lz4 or zstd
-            raise InvalidRecordingError(
-                str(self.path), f"cannot be read after {last} (truncated or damaged file?): {_describe(error)}"
-            ) from None
+            problem = f"the file ends or is damaged after it ({_describe(error)})"
+            if last is None:
+                start = format_time(window.start, self.start)
+                raise InvalidRecordingError(
+                    str(self.path), f"nothing can be read from {start} on: {problem}; {self._lost(plan)}"
+                ) from None
+            raise self._refusal(*last, problem, plan) from None
+
+    def _cut_error(self, plan: ScenePlan | None) -> InvalidRecordingError:
+        """The refusal of the scene a truncated bag's cut falls in, naming the last message read."""
+        assert isinstance(self._reader, TruncatedBag) and self._reader.salvage.last is not None
+        channel, time = self._reader.salvage.last
+        return self._refusal(channel.topic, time, str(self.cut), plan)
+
+    def _refusal(self, topic: str, time: int, problem: str, plan: ScenePlan | None) -> InvalidRecordingError:
+        return InvalidRecordingError(
+            f"{self.path} {topic}",
+            f"message at {format_time(time, self.start)} is the last one read: {problem}; {self._lost(plan)}",
+        )
+
+    def _lost(self, plan: ScenePlan | None) -> str:
+        if plan is None:
+            return "the recording after it is cut and not posted"
+        return f"scene {plan.index} (from {format_time(plan.window.start, self.start)}) is cut and not posted"
 
     def _decode(self, message: Message) -> Any:
         try:
@@ -429,6 +492,13 @@ def scene_rng(seed: int, key: str) -> np.random.Generator:
     """
     digest = int.from_bytes(hashlib.sha256(key.encode()).digest()[:8], "big")
     return np.random.default_rng([seed, digest])
+
+
+def _default_typestore(ros1: bool) -> Typestore:
+    """The store a salvaged bag starts from: ROS 1 Noetic's or the latest ROS 2 types, with the audio types."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return audio_typestore(get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.LATEST))
 
 
 def _open(path: Path) -> AnyReader:

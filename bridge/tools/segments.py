@@ -79,8 +79,14 @@ def format_time(time: int, origin: int) -> str:
     return f"t = {(time - origin) / NANOSECONDS:.3f} s (stamp {time} ns)"
 
 
-def plan_from_markers(markers: Iterable[tuple[int, str]], start: int, stop: int, stream: str) -> list[ScenePlan]:
-    """Scenes from ``(time, text)`` markers in time order; ``start``/``stop`` bound the recording."""
+def plan_from_markers(
+    markers: Iterable[tuple[int, str]], start: int, stop: int, stream: str, *, cut: bool = False
+) -> list[ScenePlan]:
+    """Scenes from ``(time, text)`` markers in time order; ``start``/``stop`` bound the recording.
+
+    ``cut``: the recording was cut short at ``stop`` (a truncated bag), so an interaction still open
+    there ends with it instead of being an error (its scene is the cut one, which is not posted).
+    """
     scenes: list[ScenePlan] = []
     scene: ScenePlan | None = None
     looking: ObjectPlan | None = None
@@ -127,7 +133,10 @@ def plan_from_markers(markers: Iterable[tuple[int, str]], start: int, stop: int,
             open_interaction = None
         else:
             raise problem(time, text, "not a marker (scene | look <object> | begin <object> <behaviour> | end)")
-    if open_interaction is not None:
+    if open_interaction is not None and cut:
+        begun, obj, behaviour = open_interaction
+        obj.interactions.append(InteractionPlan(behaviour, Window(begun, stop)))
+    elif open_interaction is not None:
         raise problem(open_interaction[0], "begin", "the recording ends before its end marker")
     _close_scene_windows(scenes, stop)
     return [scene for scene in scenes if scene.objects]

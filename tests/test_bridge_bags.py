@@ -393,6 +393,36 @@ def test_a_truncated_bag_posts_its_whole_scenes_once_and_refuses_the_cut_one(
     assert [answer.scene_id for answer in answers] == [0, 0] and replayed[0] == answers[0]
 
 
+def test_a_truncated_bag_cut_by_a_schedule_keeps_the_objects_before_its_cut(
+    tmp_path: Path, scenes: list[list[ObjectRecording]]
+) -> None:
+    """With fixed windows the cut object is never planned: the whole ones are read, then the cut is reported."""
+    path, recording = tmp_path / "run", scenes[0][0]
+    with BagWriter(path, "mcap") as bag:
+        for number in range(4):  # objects of 6 ms: a look cloud, then a before and an after cloud
+            for offset, cloud in (
+                (0, recording.look),
+                (3, recording.interactions[0].before),
+                (5, recording.interactions[0].after),
+            ):
+                bag.time = START + (6 * number + offset) * STEP
+                bag.cloud(cloud.points)
+    schedule = {"windows": {"behaviours": [recording.interactions[0].behaviour], "look": 0.003, "interaction": 0.003}}
+    mapping = parse_mapping({"clouds": MAPPING["clouds"], "segmentation": schedule})
+    with BagReplay(path, mapping) as whole:
+        stops = [plan.window.stop for plan in whole.plans()]
+    data_file = next(path.glob("*.mcap"))
+    data_file.write_bytes(data_file.read_bytes()[: data_file.stat().st_size * 6 // 10])
+    read = []
+    with BagReplay(path, mapping) as cut, pytest.raises(InvalidRecordingError) as caught:
+        read.extend(scene.plan.window.stop for scene in cut.scenes())
+    found = re.search(
+        r"message at t = [0-9.]+ s \(stamp (\d+) ns\) is the last one read: the file ends inside", str(caught.value)
+    )
+    assert found is not None and str(caught.value).endswith("the recording after it is cut and not posted")
+    assert read and read == [stop for stop in stops if stop < int(found[1])] and len(read) < len(stops)
+
+
 def test_a_bag_cut_before_its_first_message_is_refused_naming_the_file(
     tmp_path: Path, scenes: list[list[ObjectRecording]]
 ) -> None:

@@ -2,10 +2,12 @@
 
 Bags are read with ``rosbags`` (Apache-2.0, pure Python, no ROS install),
 imported only inside these functions: the service never imports it, and the
-bridge works without it until a bag is replayed (``pip install
-'./bridge[bags]'`` on a robot, ``'contextweb[bags]'`` with the server). A mapping file (:mod:`bridge.tools.mapping`) says which topic
-carries what; markers or a fixed schedule (:mod:`bridge.tools.segments`) cut the bag
-into scenes, objects and interactions. Within an interaction window:
+bridge works without it until a bag is replayed (``pip install './bridge[bags]'``
+on a robot, ``'contextweb[bags]'`` with the server). A bag cut short, which
+rosbags cannot open, is read up to its cut by :mod:`bridge.tools.truncated`. A
+mapping file (:mod:`bridge.tools.mapping`) says which topic carries what;
+markers or a fixed schedule (:mod:`bridge.tools.segments`) cut the bag into
+scenes, objects and interactions. Within an interaction window:
 
 * before = the first cloud on the before topic, after = the last cloud on the
   after topic (the robot snaps before acting and after it, inside the window);
@@ -16,8 +18,9 @@ into scenes, objects and interactions. Within an interaction window:
   tactile sensor and the joint encoders are rarely sampled together.
 
 Times are the bag's log times (every message has one; headers do not). A scene
-is read and checked whole before it is posted, so a bad message posts nothing
-of its scene; scenes before it are posted (each once, thanks to its key).
+is read, checked and encoded whole (:mod:`bridge.tools.payloads`) before it is
+posted, so a bad message posts nothing of its scene; scenes before it are posted
+(each once, thanks to its key).
 """
 
 from __future__ import annotations

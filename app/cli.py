@@ -62,9 +62,9 @@ def _build_migrate(parser: argparse.ArgumentParser) -> None:
 
 def _build_bridge(parser: argparse.ArgumentParser) -> None:
     tools = parser.add_subparsers(dest="tool", required=True, metavar="TOOL")
-    for name in ("simulate", "replay"):
+    for name, module_name in (("simulate", "sim.robot"), ("replay", "bridge.tools.replay")):
         try:
-            module = importlib.import_module(f"bridge.tools.{name}")
+            module = importlib.import_module(module_name)
         except ModuleNotFoundError as missing:  # simulate needs the `experiments` extra (tqdm); replay does not
             tool = tools.add_parser(name, help=f"unavailable: {missing}", add_help=False)
             tool.add_argument("arguments", nargs=argparse.REMAINDER)

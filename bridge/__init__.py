@@ -3,8 +3,8 @@
 Its own distribution (bridge/pyproject.toml): ``pip install ./bridge`` installs it with httpx
 and pydantic only (``websockets`` with the ``stream`` extra, imported when a stream is
 opened), so a robot does not install the service, numba, numpy or SQLAlchemy.
-``bridge.tools`` (the simulator and the replay of recordings) imports ``core`` and ships with
-the server's distribution instead; nothing here imports it.
+``bridge.tools`` (the replay of folders, ROS bags and yarp logs) is in the distribution too but needs
+numpy and the file readers: ``pip install './bridge[bags]'``; nothing here imports it.
 """
 
 from bridge.client import Client, QueuedScene
@@ -16,6 +16,7 @@ from bridge.errors import (
     ContextwebClientError,
     IdempotencyKeyReusedError,
     InternalServerError,
+    InvalidRecordingError,
     InvalidRequestError,
     ModelNotFittedError,
     ModelNotFoundError,
@@ -50,6 +51,7 @@ __all__ = [
     "IdempotencyKeyReusedError",
     "Interaction",
     "InternalServerError",
+    "InvalidRecordingError",
     "InvalidRequestError",
     "ModelNotFittedError",
     "ModelNotFoundError",

@@ -19,6 +19,17 @@ class ContextwebClientError(Exception):
     """Base of every error the bridge raises."""
 
 
+class InvalidRecordingError(ContextwebClientError, ValueError):
+    """A recording the replay tools (``bridge.tools``) refuse before anything is sent: a mapping file, a bag,
+    a yarp log or a payload the service would not accept. ``field`` says where (a file and topic, a mapping
+    key), ``problem`` what (for a message: its time)."""
+
+    def __init__(self, field: str, problem: str) -> None:
+        self.field = field
+        self.problem = problem
+        super().__init__(f"{field}: {problem}")
+
+
 class APIConnectionError(ContextwebClientError):
     """The service could not be reached (refused, reset, DNS, TLS) even after the retries."""
 

@@ -27,7 +27,7 @@ from fastapi.testclient import TestClient
 
 from app.serve import serving_app
 from app.settings import Settings
-from bridge.tools.simulate import scene_objects, training_object
+from sim.robot import scene_objects, training_object
 from sim.world import World
 from storage.database import create_database_engine
 from storage.migrations import upgrade_to_head

@@ -23,9 +23,12 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine, create_engine, text
 
 from app.main import create_app
+from app.schemas.observations import RawObject as ServiceRawObject
+from app.services.perception import raw_recording
 from app.services.warmup import warm_up_kernels
 from app.settings import Settings
 from core.features.layout import EFFECT_LAYOUT, EFFECT_SIZE, ENTITY_SIZE
+from core.payloads import ObjectRecording
 from sim.world import World
 from storage.database import create_database_engine
 from storage.migrations import upgrade_to_head
@@ -210,3 +213,9 @@ def synthetic_training_objects(world: World, seed: int) -> list[dict]:
             }
         )
     return objects
+
+
+def decoded_recording(raw: Any) -> ObjectRecording:
+    """What the service makes of a raw object a bridge tool encoded (``bridge.models.RawObject``): its
+    schema, then its decoding into ``core.payloads``."""
+    return raw_recording(ServiceRawObject.model_validate(raw.model_dump(mode="json")), "raw")

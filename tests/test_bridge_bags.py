@@ -4,6 +4,7 @@ restart, and fail on bad bags with errors naming the topic and the time, posting
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -14,6 +15,7 @@ import httpx
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from rosbags.highlevel import AnyReader
 from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Ros2Writer
@@ -22,6 +24,8 @@ from rosbags.typesys import Stores, get_typestore
 from app.cli import main
 from app.main import create_app
 from bridge import Client, RetryPolicy
+from bridge.errors import InvalidRecordingError
+from bridge.models import RawObject
 from bridge.tools import replay
 from bridge.tools.bags import (
     BagReplay,
@@ -34,10 +38,9 @@ from bridge.tools.bags import (
 )
 from bridge.tools.mapping import AudioStream, Haptics, Proprioception, parse_mapping
 from bridge.tools.segments import plan_from_markers, plan_from_windows
-from core.errors import InvalidInputError
 from core.payloads import Interaction, ObjectRecording, PointCloud
 from sim.world import World, WorldConfig
-from tests.conftest import make_settings, migrated_database, synthetic_training_objects
+from tests.conftest import decoded_recording, make_settings, migrated_database, synthetic_training_objects
 
 START = 1_700_000_000 * 1_000_000_000
 STEP = 1_000_000  # 1 ms between messages
@@ -181,9 +184,11 @@ def write_bag(path: Path, kind: str, scenes: list[list[ObjectRecording]], **opti
     return path
 
 
-def _assert_same_recordings(got: list[ObjectRecording], expected: list[ObjectRecording]) -> None:
+def _assert_same_recordings(got: list[RawObject], expected: list[ObjectRecording]) -> None:
+    """What the service decodes from the raw objects sent is the recordings (at float32, as sent)."""
     assert len(got) == len(expected)
-    for back, source in zip(got, expected, strict=True):
+    for raw, source in zip(got, expected, strict=True):
+        back = decoded_recording(raw)
         np.testing.assert_array_equal(back.look.points, source.look.points.astype(np.float32))
         theirs_by_behaviour = {i.behaviour: i for i in source.interactions}  # folders list behaviours sorted
         assert sorted(i.behaviour for i in back.interactions) == sorted(theirs_by_behaviour)
@@ -196,8 +201,10 @@ def _assert_same_recordings(got: list[ObjectRecording], expected: list[ObjectRec
                 assert mine.audio.sample_rate == theirs.audio.sample_rate
                 np.testing.assert_array_equal(mine.audio.samples, theirs.audio.samples)
             if theirs.finger is not None:
-                np.testing.assert_array_equal(mine.finger.haptic, theirs.finger.haptic)
-                np.testing.assert_array_equal(mine.finger.proprioceptive, theirs.finger.proprioceptive)
+                np.testing.assert_array_equal(mine.finger.haptic, theirs.finger.haptic.astype(np.float32))
+                np.testing.assert_array_equal(
+                    mine.finger.proprioceptive, theirs.finger.proprioceptive.astype(np.float32)
+                )
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -212,7 +219,7 @@ def test_a_bag_reads_back_the_recordings_a_folder_does(
         folder = tmp_path / f"scene_{number}"
         for index, recording in enumerate(recordings):
             replay.write_object(folder / f"object_{index}", recording)
-        from_folder = [obj.recording for obj in replay.read_scene(folder)]
+        from_folder = [decoded_recording(obj.raw) for obj in replay.read_scene(folder)]
         _assert_same_recordings(scene.recordings, from_folder)
         _assert_same_recordings(scene.recordings, recordings)
         assert [obj.name for obj in scene.plan.objects] == ["object_0", "object_1"]
@@ -288,7 +295,7 @@ def _error_after_posting(
     tmp_path: Path, world: World, service: TestClient, bag: Path, mapping: dict, posted: int
 ) -> str:
     model_id = _fitted_model(service, world)
-    with _bridge(service) as client, pytest.raises(InvalidInputError) as caught:
+    with _bridge(service) as client, pytest.raises(InvalidRecordingError) as caught:
         replay_bag(client, model_id, bag, parse_mapping(mapping))
     assert _scene_count(service, model_id) == posted
     return str(caught.value)
@@ -342,20 +349,90 @@ def test_an_organised_cloud_drops_its_nan_points(tmp_path: Path, scenes: list[li
             bag.marker("end cup grasp")
     with BagReplay(path, parse_mapping(MAPPING)) as replayed:
         (scene,) = replayed.scenes()
-    np.testing.assert_array_equal(scene.recordings[0].look.points, recording.look.points[5:].astype(np.float32))
-    assert scene.recordings[0].interactions[0].finger is None  # no finger messages in that window
+    back = decoded_recording(scene.recordings[0])
+    np.testing.assert_array_equal(back.look.points, recording.look.points[5:].astype(np.float32))
+    assert back.interactions[0].finger is None  # no finger messages in that window
 
 
-@pytest.mark.parametrize("kind", ["mcap", "ros1"])
-def test_a_truncated_bag_is_refused_naming_the_file(
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_truncated_bag_posts_its_whole_scenes_once_and_refuses_the_cut_one(
     tmp_path: Path, kind: str, world: World, scenes: list[list[ObjectRecording]], service: TestClient
 ) -> None:
+    """A recorder killed mid-write: the bag is cut at several offsets (rosbags cannot open any of them).
+    The scenes before the cut are posted, each once across restarts; the scene the cut falls in is
+    refused naming the last message read (a real message of the bag); the repaired bag posts the rest."""
     bag = write_bag(tmp_path, kind, scenes)
-    data_file = bag if kind == "ros1" else next(bag.glob("*.mcap"))
+    data_file = bag if kind == "ros1" else next(bag.glob("*.mcap" if kind == "mcap" else "*.db3"))
     content = data_file.read_bytes()
-    data_file.write_bytes(content[: len(content) * 3 // 5])
-    message = _error_after_posting(tmp_path, world, service, bag, MAPPING, posted=0)
-    assert message.startswith(str(bag)) and ("cannot be opened as a ROS bag" in message or "truncated" in message)
+    with AnyReader([bag], default_typestore=audio_typestore()) as reader:
+        recorded = {(connection.topic, time) for connection, time, _ in reader.messages()}
+    with BagReplay(bag, parse_mapping(MAPPING)) as whole:
+        scene_starts = [plan.window.start for plan in whole.plans()]
+    model_id = _fitted_model(service, world)
+    answers = []
+    for fraction, posted in ((0.3, 0), (0.7, 1), (0.7, 1)):  # the second 0.7: a restart
+        data_file.write_bytes(content[: int(len(content) * fraction)])
+        with _bridge(service) as client, pytest.raises(InvalidRecordingError) as caught:
+            replay_bag(client, model_id, bag, parse_mapping(MAPPING), on_answer=lambda _, a: answers.append(a))
+        assert _scene_count(service, model_id) == posted, fraction
+        found = re.fullmatch(
+            rf"{re.escape(str(bag))} (\S+): message at t = [0-9.]+ s \(stamp (\d+) ns\) is the last one read: "
+            rf"the file ends [^;]+; scene {posted} \(from t = [0-9.]+ s \(stamp (\d+) ns\)\) is cut "
+            r"and not posted",
+            str(caught.value),
+        )
+        assert found is not None, str(caught.value)
+        topic, stamp, scene_start = found[1], int(found[2]), int(found[3])
+        assert (topic, stamp) in recorded and scene_start == scene_starts[posted] <= stamp
+    # Repaired (or, for MCAP, cut inside its footer: every message is read): the same keys, so only the
+    # cut scene is learned now.
+    data_file.write_bytes(content[:-10] if kind == "mcap" else content)
+    with _bridge(service) as client:
+        replayed = replay_bag(client, model_id, bag, parse_mapping(MAPPING))
+    assert _scene_count(service, model_id) == 2
+    assert [answer.scene_id for answer in answers] == [0, 0] and replayed[0] == answers[0]
+
+
+def test_a_truncated_bag_cut_by_a_schedule_keeps_the_objects_before_its_cut(
+    tmp_path: Path, scenes: list[list[ObjectRecording]]
+) -> None:
+    """With fixed windows the cut object is never planned: the whole ones are read, then the cut is reported."""
+    path, recording = tmp_path / "run", scenes[0][0]
+    with BagWriter(path, "mcap") as bag:
+        for number in range(4):  # objects of 6 ms: a look cloud, then a before and an after cloud
+            for offset, cloud in (
+                (0, recording.look),
+                (3, recording.interactions[0].before),
+                (5, recording.interactions[0].after),
+            ):
+                bag.time = START + (6 * number + offset) * STEP
+                bag.cloud(cloud.points)
+    schedule = {"windows": {"behaviours": [recording.interactions[0].behaviour], "look": 0.003, "interaction": 0.003}}
+    mapping = parse_mapping({"clouds": MAPPING["clouds"], "segmentation": schedule})
+    with BagReplay(path, mapping) as whole:
+        stops = [plan.window.stop for plan in whole.plans()]
+    data_file = next(path.glob("*.mcap"))
+    data_file.write_bytes(data_file.read_bytes()[: data_file.stat().st_size * 6 // 10])
+    read = []
+    with BagReplay(path, mapping) as cut, pytest.raises(InvalidRecordingError) as caught:
+        read.extend(scene.plan.window.stop for scene in cut.scenes())
+    found = re.search(
+        r"message at t = [0-9.]+ s \(stamp (\d+) ns\) is the last one read: the file ends inside", str(caught.value)
+    )
+    assert found is not None and str(caught.value).endswith("the recording after it is cut and not posted")
+    assert read and read == [stop for stop in stops if stop < int(found[1])] and len(read) < len(stops)
+
+
+def test_a_bag_cut_before_its_first_message_is_refused_naming_the_file(
+    tmp_path: Path, scenes: list[list[ObjectRecording]]
+) -> None:
+    bag = write_bag(tmp_path, "mcap", scenes[:1])
+    data_file = next(bag.glob("*.mcap"))
+    data_file.write_bytes(data_file.read_bytes()[:30])
+    with pytest.raises(InvalidRecordingError) as caught, BagReplay(bag, parse_mapping(MAPPING)):
+        pass
+    assert str(caught.value).startswith(f"{bag}: cannot be opened as a ROS bag: ")
+    assert "read from its start: the file ends inside a record (at byte 8)" in str(caught.value)
 
 
 def test_missing_messages_in_a_window_are_named_with_the_window(
@@ -370,7 +447,7 @@ def test_missing_messages_in_a_window_are_named_with_the_window(
         bag.cloud(scenes[0][0].look.points)
         bag.finger(0.5, 0.2)
         bag.marker("end")
-    with BagReplay(path, parse_mapping(MAPPING)) as replayed, pytest.raises(InvalidInputError) as caught:
+    with BagReplay(path, parse_mapping(MAPPING)) as replayed, pytest.raises(InvalidRecordingError) as caught:
         list(replayed.scenes())
     message = str(caught.value)
     assert "/object/points: no message in the 'grasp' window of object 'cup' after its before cloud" in message
@@ -393,11 +470,11 @@ def test_marker_grammar() -> None:
         "end": "no interaction is open",
     }
     for text, problem in bad.items():
-        with pytest.raises(InvalidInputError, match=problem):
+        with pytest.raises(InvalidRecordingError, match=problem):
             plan_from_markers([(5, text)], 0, 30, "/markers")
-    with pytest.raises(InvalidInputError, match=r"'end ball grasp' at t = 0.000 s \(stamp 3 ns\).*'cup' 'grasp'"):
+    with pytest.raises(InvalidRecordingError, match=r"'end ball grasp' at t = 0.000 s \(stamp 3 ns\).*'cup' 'grasp'"):
         plan_from_markers([(1, "look cup"), (2, "begin cup grasp"), (3, "end ball grasp")], 3, 30, "/markers")
-    with pytest.raises(InvalidInputError, match="ends before its end marker"):
+    with pytest.raises(InvalidRecordingError, match="ends before its end marker"):
         plan_from_markers([(1, "look cup"), (2, "begin cup grasp")], 0, 30, "/markers")
 
 
@@ -419,7 +496,7 @@ def test_message_decoders() -> None:
     stereo = AudioStream("/audio", 16000, channels=2)
 
     def fail(what: str) -> Exception:
-        return InvalidInputError("msg", what)
+        return InvalidRecordingError("msg", what)
 
     np.testing.assert_allclose(audio_samples(audio, stereo, fail), [0.25, -0.5 + 0.5 * 32767 / 32768])
     joints = types["sensor_msgs/msg/JointState"](
@@ -427,7 +504,7 @@ def test_message_decoders() -> None:
         name=["a", "b"], position=np.array([0.0, 90.0]), velocity=np.zeros(2), effort=np.zeros(2),
     )  # fmt: skip
     assert joint_angle(joints, Proprioception("/j", "b", unit="deg"), fail) == pytest.approx(np.pi / 2)
-    with pytest.raises(InvalidInputError, match=r"no joint 'c' \(joints: \['a', 'b'\]\)"):
+    with pytest.raises(InvalidRecordingError, match=r"no joint 'c' \(joints: \['a', 'b'\]\)"):
         joint_angle(joints, Proprioception("/j", "c"), fail)
     vector = types["geometry_msgs/msg/Vector3"]
     wrench = types["geometry_msgs/msg/WrenchStamped"](
@@ -448,7 +525,7 @@ def test_mapping_errors_name_the_key(tmp_path: Path) -> None:
     }
     for field, table in cases.items():
         table = {key: value for key, value in table.items() if value is not None}
-        with pytest.raises(InvalidInputError) as caught:
+        with pytest.raises(InvalidRecordingError) as caught:
             parse_mapping(table)
         assert caught.value.field == field
 
@@ -468,7 +545,7 @@ def test_the_service_never_imports_rosbags_and_a_missing_install_says_what_to_do
         [sys.executable, "-c", code, str(bag)], check=False, capture_output=True, text=True, timeout=120
     )
     assert result.returncode == 0, result.stderr
-    assert "pip install 'contextweb[bags]'" in result.stdout
+    assert "pip install './bridge[bags]'" in result.stdout and "'contextweb[bags]'" in result.stdout
 
 
 def test_replay_cli_detects_bags_and_reports_errors_without_a_traceback(
@@ -507,8 +584,8 @@ def test_a_scene_body_depends_only_on_the_seed_and_its_key(tmp_path: Path, scene
         BagReplay(bag, parse_mapping(MAPPING)) as replayed,
     ):
         plans = replayed.plans()
-        post_scenes(client, "m", replayed.scenes(plans), seed=1, max_points=50)
-        post_scenes(client, "m", replayed.scenes(plans[1:]), seed=1, max_points=50)
+        post_scenes(client, "m", replayed.scenes(plans, seed=1, max_points=50))
+        post_scenes(client, "m", replayed.scenes(plans[1:], seed=1, max_points=50))
         second = bodies[next(replayed.scenes(plans[1:])).key]
     assert len(second) == 2 and second[0] == second[1]
     assert len(bodies) == 2

@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from bridge.errors import InvalidRecordingError
 from bridge.tools import replay
 from bridge.tools.mapping import parse_mapping
 from bridge.tools.segments import finger_series
 from bridge.tools.yarp import YarpSession, is_yarp_session, read_port_log, replay_yarp
-from core.errors import InvalidInputError
 from core.payloads import ObjectRecording
 from sim.world import World
+from tests.conftest import decoded_recording
 from tests.test_bridge_bags import _bridge, _fitted_model, _scene_count, _small, service, world  # noqa: F401
 
 START = 1_700_000_000.0
@@ -90,15 +91,16 @@ def test_a_yarp_session_gives_the_recordings_back(tmp_path: Path, scenes: list[l
         ["s1_object_0"],
     ]
     for scene, recordings in zip(replayed, scenes, strict=True):
-        for back, source in zip(scene.recordings, recordings, strict=True):
+        for raw, source in zip(scene.recordings, recordings, strict=True):
+            back = decoded_recording(raw)
             np.testing.assert_array_equal(back.look.points, source.look.points.astype(np.float32))
             assert [i.behaviour for i in back.interactions] == [i.behaviour for i in source.interactions]
             for mine, theirs in zip(back.interactions, source.interactions, strict=True):
                 assert (mine.finger is None) == (theirs.finger is None)
                 assert (mine.audio is None) == (theirs.audio is None)
                 if theirs.finger is not None:
-                    np.testing.assert_allclose(mine.finger.proprioceptive, theirs.finger.proprioceptive, rtol=1e-12)
-                    np.testing.assert_allclose(mine.finger.haptic, theirs.finger.haptic, rtol=1e-12)
+                    np.testing.assert_allclose(mine.finger.proprioceptive, theirs.finger.proprioceptive, rtol=1e-6)
+                    np.testing.assert_allclose(mine.finger.haptic, theirs.finger.haptic, rtol=1e-6)  # float32 sent
     assert len({scene.key for scene in replayed}) == 2 and all(s.key.startswith("yarp-") for s in replayed)
 
 
@@ -125,21 +127,21 @@ def test_bad_lines_are_named_by_file_line_and_stamp(tmp_path: Path, scenes: list
     words[2 + INDEX_PROXIMAL] = "nan?"
     lines[3] = " ".join(words)
     data.write_text("\n".join(lines) + "\n")
-    with pytest.raises(InvalidInputError) as caught:
+    with pytest.raises(InvalidRecordingError) as caught:
         list(YarpSession(session_folder, parse_mapping(MAPPING)).scenes())
     assert str(caught.value).startswith(f"{data}: line 4 (stamp {float(words[1]):.6f} s): a value is not a number")
 
     short = {**MAPPING, "proprioception": {"folder": "icub_right_arm_state", "column": 16}}
-    with pytest.raises(InvalidInputError, match=r"line 1 \(stamp .*\): has 16 values, the mapping reads column 16"):
+    with pytest.raises(InvalidRecordingError, match=r"line 1 \(stamp .*\): has 16 values, the mapping reads column 16"):
         list(YarpSession(session_folder, parse_mapping(short)).scenes())
 
     lines[5], lines[6] = lines[6], lines[5]
     data.write_text("\n".join(lines) + "\n")
-    with pytest.raises(InvalidInputError, match="data.log: line 7 goes back in time"):
+    with pytest.raises(InvalidRecordingError, match="data.log: line 7 goes back in time"):
         read_port_log(data.parent)
 
     (session_folder / "contextweb_markers" / "info.log").write_text("Type: Image:ppm;\n")
-    with pytest.raises(InvalidInputError, match="only bottle dumps are read"):
+    with pytest.raises(InvalidRecordingError, match="only bottle dumps are read"):
         read_port_log(session_folder / "contextweb_markers")
 
 
@@ -152,6 +154,6 @@ def test_two_stamps_per_line_use_the_senders(tmp_path: Path) -> None:
 
 
 def test_haptics_are_interpolated_at_the_joint_readings() -> None:
-    series = finger_series([0, 10, 20], [0.1, 0.2, 0.3], [5, 15], [1.0, 3.0])
-    assert series.haptic.tolist() == [1.0, 2.0, 3.0]  # the ends held, the middle halfway
-    assert series.proprioceptive.tolist() == [0.1, 0.2, 0.3]
+    haptic, proprioceptive = finger_series([0, 10, 20], [0.1, 0.2, 0.3], [5, 15], [1.0, 3.0])
+    assert haptic.tolist() == [1.0, 2.0, 3.0]  # the ends held, the middle halfway
+    assert proprioceptive.tolist() == [0.1, 0.2, 0.3]

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from bridge import Client
-from bridge.tools.simulate import simulate, train
+from sim.robot import simulate, train
 from sim.world import World, WorldConfig
 from tests.test_bridge_live import READ_KEY, WRITE_KEY, ServiceProcess
 

@@ -190,15 +190,16 @@ def feature_vectors(features: ObjectFeatures) -> tuple[np.ndarray, dict[str, np.
 
 def raw_feature_vectors(raw: RawObject, field: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Table III features extracted from the raw payloads (``core.features.extract``)."""
-    recording = _recording(raw, field)
+    recording = raw_recording(raw, field)
     try:
         return recording_features(recording)
     except InvalidInputError as error:
         raise InvalidInput(f"{field}.{error.field.removeprefix('recording.')}", error.problem) from None
 
 
-def _recording(raw: RawObject, field: str) -> ObjectRecording:
-    """The core payloads (validated there); a problem is reported at its place in the request."""
+def raw_recording(raw: RawObject, field: str) -> ObjectRecording:
+    """A raw object decoded into the core payloads (validated there); a problem is reported at its place in the
+    request (``field``)."""
     return ObjectRecording(
         look=_payload(PointCloud, f"{field}.look", raw.look.array()),
         interactions=tuple(

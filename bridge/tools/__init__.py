@@ -1,8 +1,9 @@
-"""Development tools that feed a running service through :class:`bridge.Client`: the simulated iCub
-(``contextweb bridge simulate``) and the replay of recordings, bags and yarp sessions
-(``contextweb bridge replay``).
+"""The replay of recordings through :class:`bridge.Client` (``contextweb bridge replay``): folders of
+PLY/PCD/WAV/CSV/NPY files (:mod:`bridge.tools.replay`), ROS bags (:mod:`bridge.tools.bags`) and
+yarpdatadumper sessions (:mod:`bridge.tools.yarp`), cut into scenes by a mapping file
+(:mod:`bridge.tools.mapping`, :mod:`bridge.tools.segments`) and encoded by :mod:`bridge.tools.payloads`.
 
-They read recordings with numpy, soundfile, plyfile, rosbags and ``core`` (the payloads and the
-feature extraction), so they ship with the server's distribution (the root pyproject.toml), not
-with the robot's ``pip install ./bridge`` (bridge/pyproject.toml), which holds the client alone.
+Part of the robot's distribution (bridge/pyproject.toml) behind its ``bags`` extra: numpy, rosbags and
+the file readers, never ``core``, ``app`` or ``storage``. The simulated robot (``contextweb bridge
+simulate``) needs the world and the feature extraction, so it lives in the server's ``sim.robot``.
 """

@@ -2,10 +2,12 @@
 
 Bags are read with ``rosbags`` (Apache-2.0, pure Python, no ROS install),
 imported only inside these functions: the service never imports it, and the
-bridge works without it until a bag is replayed (``pip install
-'contextweb[bags]'``). A mapping file (:mod:`bridge.tools.mapping`) says which topic
-carries what; markers or a fixed schedule (:mod:`bridge.tools.segments`) cut the bag
-into scenes, objects and interactions. Within an interaction window:
+bridge works without it until a bag is replayed (``pip install './bridge[bags]'``
+on a robot, ``'contextweb[bags]'`` with the server). A bag cut short, which
+rosbags cannot open, is read up to its cut by :mod:`bridge.tools.truncated`. A
+mapping file (:mod:`bridge.tools.mapping`) says which topic carries what;
+markers or a fixed schedule (:mod:`bridge.tools.segments`) cut the bag into
+scenes, objects and interactions. Within an interaction window:
 
 * before = the first cloud on the before topic, after = the last cloud on the
   after topic (the robot snaps before acting and after it, inside the window);
@@ -16,8 +18,9 @@ into scenes, objects and interactions. Within an interaction window:
   tactile sensor and the joint encoders are rarely sampled together.
 
 Times are the bag's log times (every message has one; headers do not). A scene
-is read and checked whole before it is posted, so a bad message posts nothing
-of its scene; scenes before it are posted (each once, thanks to its key).
+is read, checked and encoded whole (:mod:`bridge.tools.payloads`) before it is
+posted, so a bad message posts nothing of its scene; scenes before it are posted
+(each once, thanks to its key).
 """
 
 from __future__ import annotations
@@ -28,13 +31,16 @@ import json
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Self
+from typing import TYPE_CHECKING, Any, Self, TypeVar
 
 import numpy as np
 
 from bridge.client import Client, QueuedScene
-from bridge.models import SceneObject, SceneRead
+from bridge.errors import InvalidRecordingError
+from bridge.models import Audio, Finger, Interaction, PointCloud, RawObject, SceneObject, SceneRead
+from bridge.tools import payloads
 from bridge.tools.mapping import AudioStream, Haptics, Mapping, Proprioception
+from bridge.tools.payloads import DEFAULT_MAX_POINTS
 from bridge.tools.segments import (
     InteractionPlan,
     ObjectPlan,
@@ -47,16 +53,18 @@ from bridge.tools.segments import (
     plan_from_markers,
     plan_from_windows,
 )
-from bridge.tools.simulate import DEFAULT_MAX_POINTS, raw_object
-from core.errors import InvalidInputError
-from core.payloads import Audio, Interaction, ObjectRecording, PointCloud
+from bridge.tools.truncated import Channel, TruncatedBag
 
 if TYPE_CHECKING:
     from rosbags.highlevel import AnyReader
     from rosbags.interfaces import Connection
     from rosbags.typesys.store import Typestore
 
-INSTALL_HINT = "reading ROS bags needs the rosbags package: pip install 'contextweb[bags]'"
+PayloadT = TypeVar("PayloadT")
+INSTALL_HINT = (
+    "reading ROS bags needs the rosbags package: pip install 'contextweb-bridge[bags]' on a robot "
+    "(pip install './bridge[bags]' from a checkout), or 'contextweb[bags]' with the server"
+)
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 
 #: audio_common's messages (ROS 1 audio_common, ROS 2 audio_common ports): not in rosbags' stores.
@@ -80,7 +88,7 @@ class Message:
 
     topic: str
     time: int
-    connection: Connection
+    connection: Connection | Channel
     raw: bytes
 
 
@@ -113,13 +121,17 @@ class BagReplay:
     def __init__(self, path: Path, mapping: Mapping) -> None:
         self.path = path
         self.mapping = mapping
-        self._reader = _open(path)
+        self._opened = _open(path)
+        self._reader: AnyReader | TruncatedBag = self._opened
+        self._plans: list[ScenePlan] | None = None
+        #: Where a truncated bag ends ("the file ends inside a chunk ..."); None for a whole bag.
+        self.cut: str | None = None
 
     def __enter__(self) -> Self:
         try:
-            self._reader.open()
+            self._opened.open()
         except Exception as error:  # noqa: BLE001 - rosbags, apsw, lz4 and zstd each raise their own errors
-            raise InvalidInputError(str(self.path), f"cannot be opened as a ROS bag: {_describe(error)}") from None
+            self._reader = self._salvage(error)
         self.start, self.stop = self._reader.start_time, self._reader.end_time
         self._connections = self._check_topics()
         return self
@@ -127,35 +139,78 @@ class BagReplay:
     def __exit__(self, *exc_info: object) -> None:
         self._reader.close()
 
+    def _salvage(self, error: Exception) -> TruncatedBag:
+        """A bag rosbags cannot open, read from its start up to its cut (:mod:`bridge.tools.truncated`)."""
+        from bridge.tools.truncated import salvage_bag
+
+        refused = InvalidRecordingError(str(self.path), f"cannot be opened as a ROS bag: {_describe(error)}")
+        try:
+            bag = salvage_bag(self.path, set(self.mapping.streams.values()), _default_typestore)
+        except Exception as salvage_error:  # noqa: BLE001 - a file that is no bag at all fails in many ways
+            raise InvalidRecordingError(
+                refused.field, f"{refused.problem}; read from its start: {salvage_error}"
+            ) from None
+        if bag.salvage.last is None:
+            problem = bag.salvage.problem or "it holds no message"
+            raise InvalidRecordingError(refused.field, f"{refused.problem}; read from its start: {problem}") from None
+        self.cut = bag.salvage.problem
+        return bag
+
     @property
     def identity(self) -> str:
-        """A digest of the bag's content summary: the same bag copied or moved keeps its keys."""
-        topics = sorted((name, info.msgtype, info.msgcount) for name, info in self._reader.topics.items())
-        summary = [self.start, self.stop, self._reader.message_count, topics]
-        return hashlib.sha256(json.dumps(summary).encode()).hexdigest()[:24]
+        """A digest of what every readable copy of the bag begins with: its first message time, its topics
+        with their types, and the messages of that first instant.
+
+        The same bag copied, moved, opened as its bare storage file, or cut short (a truncated copy and
+        the same bag repaired) keeps its keys; two bags that start at the same instant on the same topics
+        (simulated clocks) differ by their first messages.
+        """
+        topics = sorted({(c.topic, c.msgtype) for c in self._reader.connections})
+        every: list[Any] = list(self._reader.connections)
+        messages = self._reader.messages(every, self.start, self.start + 1)
+        first = sorted((topic.topic, hashlib.sha256(raw).hexdigest()) for topic, _, raw in messages)
+        return hashlib.sha256(json.dumps([self.start, topics, first]).encode()).hexdigest()[:24]
 
     def plans(self) -> list[ScenePlan]:
-        """The bag's scenes, from its markers or the mapping's schedule."""
+        """The bag's scenes, from its markers or the mapping's schedule (a truncated bag's up to its cut)."""
+        if self._plans is None:
+            self._plans = self._segment()
+        return self._plans
+
+    def _segment(self) -> list[ScenePlan]:
         if self.mapping.windows is not None:
             return plan_from_windows(self.mapping.windows, self.start, self.stop)
         topic = self.mapping.markers
         if topic is None:
-            raise InvalidInputError("mapping.segmentation", "needs exactly one of markers (a stream) or windows")
+            raise InvalidRecordingError("mapping.segmentation", "needs exactly one of markers (a stream) or windows")
         markers = [(m.time, str(self._decode(m).data)) for m in self._messages([topic], Window(self.start, self.stop))]
-        return plan_from_markers(markers, self.start, self.stop, f"{self.path} {topic}")
+        return plan_from_markers(markers, self.start, self.stop, f"{self.path} {topic}", cut=self.cut is not None)
 
-    def scenes(self, plans: Sequence[ScenePlan] | None = None) -> Iterator[SegmentedScene]:
-        """Each scene read whole and checked (nothing of a bad scene is returned)."""
+    def scenes(
+        self, plans: Sequence[ScenePlan] | None = None, *, seed: int = 0, max_points: int = DEFAULT_MAX_POINTS
+    ) -> Iterator[SegmentedScene]:
+        """Each scene read whole, checked and encoded (nothing of a bad scene is returned).
+
+        Clouds are subsampled to ``max_points`` by a generator seeded by ``seed`` and the scene's key
+        (:func:`scene_rng`), so a scene's body does not depend on the scenes replayed before it.
+        """
         identity = self.identity
         topics = sorted({stream for role, stream in self.mapping.streams.items() if role != "segmentation.markers"})
-        for plan in self.plans() if plans is None else plans:
+        chosen = self.plans() if plans is None else plans
+        for plan in chosen:
+            if self.cut is not None and plan.window.stop >= self.stop:  # the scene reaches the last message read
+                raise self._cut_error(plan)
             by_topic: dict[str, list[Message]] = {topic: [] for topic in topics}
-            for message in self._messages(topics, plan.window):
+            for message in self._messages(topics, plan.window, plan):
                 by_topic[message.topic].append(message)
-            recordings = [self._recording(obj, by_topic) for obj in plan.objects]
-            yield SegmentedScene(plan, recordings, f"bag-{identity}-{plan.window.start}")
+            key = f"bag-{identity}-{plan.window.start}"
+            rng = scene_rng(seed, key)
+            recordings = [self._recording(obj, by_topic, rng, max_points) for obj in plan.objects]
+            yield SegmentedScene(plan, recordings, key)
+        if self.cut is not None and (not self.plans() or chosen[-1:] == self.plans()[-1:]):
+            raise self._cut_error(None)  # a schedule keeps only whole objects: the cut one was never planned
 
-    def _check_topics(self) -> dict[str, list[Connection]]:
+    def _check_topics(self) -> dict[str, list[Connection | Channel]]:
         mapping = self.mapping
         expected = {
             "clouds.look": CLOUD_TYPES,
@@ -166,35 +221,58 @@ class BagReplay:
             "haptics": HAPTIC_TYPES,
             "segmentation.markers": MARKER_TYPES,
         }
-        connections: dict[str, list[Connection]] = {}
+        connections: dict[str, list[Connection | Channel]] = {}
         for role, topic in mapping.streams.items():
             found = [c for c in self._reader.connections if c.topic == topic]
             if not found:
                 present = ", ".join(sorted({c.topic for c in self._reader.connections}))
-                raise InvalidInputError(
+                raise InvalidRecordingError(
                     f"{self.path} {topic}", f"topic missing from the bag (mapping {role}); the bag has: {present}"
                 )
             wrong = sorted({c.msgtype for c in found} - set(expected[role]))
             if wrong:
-                raise InvalidInputError(
+                raise InvalidRecordingError(
                     f"{self.path} {topic}",
                     f"carries {', '.join(wrong)}, but mapping {role} needs {' or '.join(expected[role])}",
                 )
             connections[topic] = found
         return connections
 
-    def _messages(self, topics: Sequence[str], window: Window) -> Iterator[Message]:
+    def _messages(self, topics: Sequence[str], window: Window, plan: ScenePlan | None = None) -> Iterator[Message]:
         """Messages of ``topics`` in ``window``; a read failure names the last message read well."""
         connections = [c for topic in topics for c in self._connections[topic]]
-        last = f"the start of the window at {format_time(window.start, self.start)}"
+        last: tuple[str, int] | None = None
+        # Each reader is given back the connections it listed (_check_topics): rosbags' or a salvage's.
+        messages = self._reader.messages(connections, window.start, window.stop + 1)  # type: ignore[arg-type]
         try:
-            for connection, time, raw in self._reader.messages(connections, window.start, window.stop + 1):
+            for connection, time, raw in messages:
                 yield Message(connection.topic, time, connection, raw)
-                last = f"the message at {format_time(time, self.start)} on {connection.topic}"
+                last = (connection.topic, time)
         except Exception as error:  # noqa: BLE001 - a damaged file fails inside rosbags, apsw, lz4 or zstd
-            raise InvalidInputError(
-                str(self.path), f"cannot be read after {last} (truncated or damaged file?): {_describe(error)}"
-            ) from None
+            problem = f"the file ends or is damaged after it ({_describe(error)})"
+            if last is None:
+                start = format_time(window.start, self.start)
+                raise InvalidRecordingError(
+                    str(self.path), f"nothing can be read from {start} on: {problem}; {self._lost(plan)}"
+                ) from None
+            raise self._refusal(*last, problem, plan) from None
+
+    def _cut_error(self, plan: ScenePlan | None) -> InvalidRecordingError:
+        """The refusal of the scene a truncated bag's cut falls in, naming the last message read."""
+        assert isinstance(self._reader, TruncatedBag) and self._reader.salvage.last is not None
+        channel, time = self._reader.salvage.last
+        return self._refusal(channel.topic, time, str(self.cut), plan)
+
+    def _refusal(self, topic: str, time: int, problem: str, plan: ScenePlan | None) -> InvalidRecordingError:
+        return InvalidRecordingError(
+            f"{self.path} {topic}",
+            f"message at {format_time(time, self.start)} is the last one read: {problem}; {self._lost(plan)}",
+        )
+
+    def _lost(self, plan: ScenePlan | None) -> str:
+        if plan is None:
+            return "the recording after it is cut and not posted"
+        return f"scene {plan.index} (from {format_time(plan.window.start, self.start)}) is cut and not posted"
 
     def _decode(self, message: Message) -> Any:
         try:
@@ -202,24 +280,36 @@ class BagReplay:
         except Exception as error:  # noqa: BLE001 - rosbags' deserialisers raise several kinds
             raise self._problem(message, f"cannot be decoded as {message.connection.msgtype}: {_describe(error)}")
 
-    def _problem(self, message: Message, what: str) -> InvalidInputError:
-        return InvalidInputError(
+    def _problem(self, message: Message, what: str) -> InvalidRecordingError:
+        return InvalidRecordingError(
             f"{self.path} {message.topic}", f"message at {format_time(message.time, self.start)}: {what}"
         )
 
-    def _missing(self, topic: str, window: Window, what: str) -> InvalidInputError:
+    def _missing(self, topic: str, window: Window, what: str) -> InvalidRecordingError:
         span = f"{format_time(window.start, self.start)} to {format_time(window.stop, self.start)}"
-        return InvalidInputError(f"{self.path} {topic}", f"no message in {what} ({span})")
+        return InvalidRecordingError(f"{self.path} {topic}", f"no message in {what} ({span})")
 
-    def _recording(self, obj: ObjectPlan, by_topic: dict[str, list[Message]]) -> ObjectRecording:
+    def _recording(
+        self, obj: ObjectPlan, by_topic: dict[str, list[Message]], rng: np.random.Generator, max_points: int
+    ) -> RawObject:
         clouds = self.mapping.clouds
         looks = _within(by_topic[clouds.look], obj.look)
         if not looks:
             raise self._missing(clouds.look, obj.look, f"the look window of object {obj.name!r}")
-        interactions = tuple(self._interaction(obj, interaction, by_topic) for interaction in obj.interactions)
-        return ObjectRecording(look=self._cloud(looks[-1]), interactions=interactions)
+        look = self._cloud(looks[-1], rng, max_points)  # drawn first: the order of the subsampling draws
+        interactions = [
+            self._interaction(obj, interaction, by_topic, rng, max_points) for interaction in obj.interactions
+        ]
+        return RawObject(look=look, interactions=interactions)
 
-    def _interaction(self, obj: ObjectPlan, plan: InteractionPlan, by_topic: dict[str, list[Message]]) -> Interaction:
+    def _interaction(
+        self,
+        obj: ObjectPlan,
+        plan: InteractionPlan,
+        by_topic: dict[str, list[Message]],
+        rng: np.random.Generator,
+        max_points: int,
+    ) -> Interaction:
         clouds = self.mapping.clouds
         what = f"the {plan.behaviour!r} window of object {obj.name!r}"
         befores = _within(by_topic[clouds.before], plan.window)
@@ -230,15 +320,16 @@ class BagReplay:
             raise self._missing(clouds.after, plan.window, f"{what} after its before cloud")
         return Interaction(
             behaviour=plan.behaviour,
-            before=self._cloud(befores[0]),
-            after=self._cloud(afters[-1]),
+            before=self._cloud(befores[0], rng, max_points),
+            after=self._cloud(afters[-1], rng, max_points),
             audio=self._audio(self.mapping.audio, plan, by_topic),
             finger=self._finger(plan, by_topic, what),
         )
 
-    def _cloud(self, message: Message) -> PointCloud:
+    def _cloud(self, message: Message, rng: np.random.Generator, max_points: int) -> PointCloud:
         points = point_cloud_points(self._decode(message), lambda what: self._problem(message, what))
-        return _payload(lambda: PointCloud(points * self.mapping.clouds.scale), self._problem, message)
+        scaled = points * self.mapping.clouds.scale
+        return _payload(lambda: payloads.cloud(scaled, rng, max_points), self._problem, message)
 
     def _audio(
         self, stream: AudioStream | None, plan: InteractionPlan, by_topic: dict[str, list[Message]]
@@ -249,9 +340,9 @@ class BagReplay:
         if not messages:
             return None
         chunks = [audio_samples(self._decode(m), stream, functools.partial(self._problem, m)) for m in messages]
-        return _payload(lambda: Audio(np.concatenate(chunks), stream.sample_rate), self._problem, messages[0])
+        return _payload(lambda: payloads.audio(np.concatenate(chunks), stream.sample_rate), self._problem, messages[0])
 
-    def _finger(self, plan: InteractionPlan, by_topic: dict[str, list[Message]], what: str) -> Any:
+    def _finger(self, plan: InteractionPlan, by_topic: dict[str, list[Message]], what: str) -> Finger | None:
         joint, haptics = self.mapping.proprioception, self.mapping.haptics
         if (
             joint is None
@@ -268,11 +359,8 @@ class BagReplay:
                 raise self._missing(topic, plan.window, f"{what}, though its other finger topic has messages")
         angles = [joint_angle(self._decode(m), joint, functools.partial(self._problem, m)) for m in joints]
         pressures = [haptic_value(self._decode(m), haptics, functools.partial(self._problem, m)) for m in touches]
-        return _payload(
-            lambda: finger_series([m.time for m in joints], angles, [m.time for m in touches], pressures),
-            self._problem,
-            joints[0],
-        )
+        series = finger_series([m.time for m in joints], angles, [m.time for m in touches], pressures)
+        return _payload(lambda: payloads.finger(*series), self._problem, joints[0])
 
 
 def point_cloud_points(message: Any, problem: Callable[[str], Exception]) -> np.ndarray:
@@ -376,8 +464,8 @@ def replay_bag(
 ) -> list[SceneRead | QueuedScene]:
     """Post the bag's scenes in order (the first ``limit`` only, when given), each with its key."""
     with BagReplay(path, mapping) as bag:
-        scenes = bag.scenes(bag.plans()[:limit])
-        return post_scenes(client, model_id, scenes, seed=seed, max_points=max_points, on_answer=on_answer)
+        scenes = bag.scenes(bag.plans()[:limit], seed=seed, max_points=max_points)
+        return post_scenes(client, model_id, scenes, on_answer=on_answer)
 
 
 def post_scenes(
@@ -385,33 +473,35 @@ def post_scenes(
     model_id: str,
     scenes: Iterable[SegmentedScene],
     *,
-    seed: int,
-    max_points: int,
     on_answer: Callable[[SegmentedScene, SceneRead | QueuedScene], None] | None = None,
 ) -> list[SceneRead | QueuedScene]:
-    """Post each scene as soon as it is read and checked: a bad scene stops the replay before it is sent."""
+    """Post each scene under its key as soon as it is read and checked: a bad scene stops the replay
+    before it is sent."""
     answers = []
     for scene in scenes:
-        answer = post_scene(client, model_id, scene.recordings, scene.key, seed=seed, max_points=max_points)
+        objects = [SceneObject(raw=raw) for raw in scene.recordings]
+        answer = client.scenes.create(model_id, objects, idempotency_key=scene.key)
         answers.append(answer)
         if on_answer is not None:
             on_answer(scene, answer)
     return answers
 
 
-def post_scene(
-    client: Client, model_id: str, recordings: Sequence[ObjectRecording], key: str, *, seed: int, max_points: int
-) -> SceneRead | QueuedScene:
-    """Post recordings as one raw scene under ``key``.
+def scene_rng(seed: int, key: str) -> np.random.Generator:
+    """The subsampling generator of one scene, seeded by the replay's seed and the scene's key.
 
-    The subsampling generator is seeded by the seed and the key, so a restarted
-    replay sends the very same body and the service answers with the stored
-    scene instead of refusing a reused key.
+    A restarted replay sends the very same body under each key, so the service answers with the
+    stored scene instead of refusing a reused key.
     """
     digest = int.from_bytes(hashlib.sha256(key.encode()).digest()[:8], "big")
-    rng = np.random.default_rng([seed, digest])
-    objects = [SceneObject(raw=raw_object(recording, rng, max_points)) for recording in recordings]
-    return client.scenes.create(model_id, objects, idempotency_key=key)
+    return np.random.default_rng([seed, digest])
+
+
+def _default_typestore(ros1: bool) -> Typestore:
+    """The store a salvaged bag starts from: ROS 1 Noetic's or the latest ROS 2 types, with the audio types."""
+    from rosbags.typesys import Stores, get_typestore
+
+    return audio_typestore(get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.LATEST))
 
 
 def _open(path: Path) -> AnyReader:
@@ -420,7 +510,7 @@ def _open(path: Path) -> AnyReader:
     except ImportError:
         raise ImportError(INSTALL_HINT) from None
     if not path.exists():
-        raise InvalidInputError(str(path), "does not exist")
+        raise InvalidRecordingError(str(path), "does not exist")
     return AnyReader([path], default_typestore=audio_typestore())
 
 
@@ -428,11 +518,11 @@ def _within(messages: Sequence[Message], window: Window) -> list[Message]:
     return [message for message in messages if window.holds(message.time)]
 
 
-def _payload(build: Callable[[], Any], problem: Callable[[Message, str], Exception], message: Message) -> Any:
-    """Build a core payload; its validation error is re-raised naming the topic and time."""
+def _payload(build: Callable[[], PayloadT], problem: Callable[[Message, str], Exception], message: Message) -> PayloadT:
+    """Check and encode a payload (:mod:`bridge.tools.payloads`); its error is re-raised naming the topic and time."""
     try:
         return build()
-    except InvalidInputError as error:
+    except InvalidRecordingError as error:
         raise problem(message, str(error)) from None
 
 

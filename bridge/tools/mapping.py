@@ -3,7 +3,7 @@
 A TOML file (read with the standard library's ``tomllib``), shared by ROS bags
 (:mod:`bridge.tools.bags`, streams are topics) and yarpdatadumper logs
 (:mod:`bridge.tools.yarp`, streams are dump folders). docs/bridge.md has the full
-format and an example; every problem is an :class:`InvalidInputError` whose
+format and an example; every problem is an :class:`InvalidRecordingError` whose
 field is the mapping key (``mapping.haptics.reduce``).
 """
 
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from core.errors import InvalidInputError
+from bridge.errors import InvalidRecordingError
 
 REDUCTIONS = ("mean", "sum", "max")
 #: ``haptics.component`` of a geometry_msgs/msg/WrenchStamped: one axis, or the force's magnitude.
@@ -109,7 +109,7 @@ def read_mapping(path: Path) -> Mapping:
     try:
         table = tomllib.loads(path.read_text(encoding="utf-8"))
     except (OSError, tomllib.TOMLDecodeError) as error:
-        raise InvalidInputError(str(path), f"cannot be read as a TOML mapping: {error}") from None
+        raise InvalidRecordingError(str(path), f"cannot be read as a TOML mapping: {error}") from None
     return parse_mapping(table)
 
 
@@ -125,45 +125,47 @@ def parse_mapping(table: dict[str, Any]) -> Mapping:
         **_yarp(_section(table, "yarp")),
     )
     if (mapping.proprioception is None) != (mapping.haptics is None):
-        raise InvalidInputError("mapping.haptics", "and mapping.proprioception go together: a finger series needs both")
+        raise InvalidRecordingError(
+            "mapping.haptics", "and mapping.proprioception go together: a finger series needs both"
+        )
     return mapping
 
 
 def _required_section(table: dict[str, Any], name: str) -> dict[str, Any]:
     section = _section(table, name)
     if section is None:
-        raise InvalidInputError(f"mapping.{name}", "is missing")
+        raise InvalidRecordingError(f"mapping.{name}", "is missing")
     return section
 
 
 def _section(table: dict[str, Any], name: str) -> dict[str, Any] | None:
     section = table.get(name)
     if section is not None and not isinstance(section, dict):
-        raise InvalidInputError(f"mapping.{name}", "must be a table")
+        raise InvalidRecordingError(f"mapping.{name}", "must be a table")
     return section
 
 
 def _only(table: dict[str, Any], field: str, allowed: set[str]) -> None:
     unknown = sorted(set(table) - allowed)
     if unknown:
-        raise InvalidInputError(field, f"has unknown keys {unknown} (allowed: {sorted(allowed)})")
+        raise InvalidRecordingError(field, f"has unknown keys {unknown} (allowed: {sorted(allowed)})")
 
 
 def _get(section: dict[str, Any], field: str, key: str, kind: type | tuple[type, ...], default: Any = ...) -> Any:
     if key not in section:
         if default is ...:
-            raise InvalidInputError(f"{field}.{key}", "is missing")
+            raise InvalidRecordingError(f"{field}.{key}", "is missing")
         return default
     value = section[key]
     if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
-        raise InvalidInputError(f"{field}.{key}", f"has the wrong type ({type(value).__name__})")
+        raise InvalidRecordingError(f"{field}.{key}", f"has the wrong type ({type(value).__name__})")
     return value
 
 
 def _choice(section: dict[str, Any], field: str, key: str, choices: tuple[str, ...], default: str) -> str:
     value = _get(section, field, key, str, default)
     if value not in choices:
-        raise InvalidInputError(f"{field}.{key}", f"is {value!r}, expected one of {list(choices)}")
+        raise InvalidRecordingError(f"{field}.{key}", f"is {value!r}, expected one of {list(choices)}")
     return value
 
 
@@ -171,7 +173,7 @@ def _source(section: dict[str, Any], field: str) -> str:
     """``topic`` (bags) or ``folder`` (yarp dump folders): exactly one."""
     given = [key for key in ("topic", "folder") if key in section]
     if len(given) != 1:
-        raise InvalidInputError(field, "needs exactly one of topic (bags) or folder (yarp logs)")
+        raise InvalidRecordingError(field, "needs exactly one of topic (bags) or folder (yarp logs)")
     return _get(section, field, given[0], str)
 
 
@@ -187,10 +189,10 @@ def _clouds(section: dict[str, Any]) -> Clouds:
     roles = {role: _get(section, field, role, str, default) for role in ("look", "before", "after")}
     missing = [role for role, stream in roles.items() if stream is None]
     if missing:
-        raise InvalidInputError(field, f"names no stream for {missing}: give topic, or look, before and after")
+        raise InvalidRecordingError(field, f"names no stream for {missing}: give topic, or look, before and after")
     scale = float(_get(section, field, "scale", (int, float), 1.0))
     if scale <= 0:
-        raise InvalidInputError(f"{field}.scale", "must be positive")
+        raise InvalidRecordingError(f"{field}.scale", "must be positive")
     return Clouds(**roles, scale=scale)
 
 
@@ -201,7 +203,7 @@ def _audio(section: dict[str, Any] | None) -> AudioStream | None:
     _only(section, field, {"topic", "folder", "sample_rate", "channels", "sample_format", "behaviours"})
     channels = _get(section, field, "channels", int, 1)
     if channels < 1:
-        raise InvalidInputError(f"{field}.channels", "must be at least 1")
+        raise InvalidRecordingError(f"{field}.channels", "must be at least 1")
     return AudioStream(
         source=_source(section, field),
         sample_rate=_get(section, field, "sample_rate", int),
@@ -217,7 +219,7 @@ def _proprioception(section: dict[str, Any] | None) -> Proprioception | None:
     field = "mapping.proprioception"
     _only(section, field, {"topic", "folder", "joint", "column", "unit", "behaviours"})
     if ("joint" in section) == ("column" in section):
-        raise InvalidInputError(field, "needs exactly one of joint (a JointState name) or column (a yarp column)")
+        raise InvalidRecordingError(field, "needs exactly one of joint (a JointState name) or column (a yarp column)")
     joint = _get(section, field, "joint", str) if "joint" in section else _get(section, field, "column", int)
     return Proprioception(
         source=_source(section, field),
@@ -236,7 +238,7 @@ def _haptics(section: dict[str, Any] | None) -> Haptics | None:
     if indices is not None and not (
         isinstance(indices, list) and indices and all(isinstance(i, int) and i >= 0 for i in indices)
     ):
-        raise InvalidInputError(f"{field}.indices", "must be a non-empty list of element (or column) indices")
+        raise InvalidRecordingError(f"{field}.indices", "must be a non-empty list of element (or column) indices")
     return Haptics(
         source=_source(section, field),
         indices=None if indices is None else tuple(indices),
@@ -250,7 +252,7 @@ def _segmentation(section: dict[str, Any]) -> dict[str, Any]:
     field = "mapping.segmentation"
     _only(section, field, {"markers", "windows"})
     if ("markers" in section) == ("windows" in section):
-        raise InvalidInputError(field, "needs exactly one of markers (a stream) or windows (a fixed schedule)")
+        raise InvalidRecordingError(field, "needs exactly one of markers (a stream) or windows (a fixed schedule)")
     if "markers" in section:
         return {"markers": _get(section, field, "markers", str)}
     windows = _get(section, field, "windows", dict)
@@ -264,7 +266,7 @@ def _segmentation(section: dict[str, Any]) -> dict[str, Any]:
         start=float(_get(windows, field, "start", (int, float), 0.0)),
     )
     if not schedule.behaviours or schedule.look <= 0 or schedule.interaction <= 0 or schedule.objects_per_scene < 1:
-        raise InvalidInputError(field, "needs behaviours, and positive look, interaction and objects_per_scene")
+        raise InvalidRecordingError(field, "needs behaviours, and positive look, interaction and objects_per_scene")
     return {"windows": schedule}
 
 
@@ -275,5 +277,5 @@ def _yarp(section: dict[str, Any] | None) -> dict[str, Any]:
     _only(section, field, {"timestamps"})
     timestamps = _get(section, field, "timestamps", int, 1)
     if timestamps not in (1, 2):
-        raise InvalidInputError(f"{field}.timestamps", "is 1 (one stamp per line) or 2 (--txTime with --rxTime)")
+        raise InvalidRecordingError(f"{field}.timestamps", "is 1 (one stamp per line) or 2 (--txTime with --rxTime)")
     return {"yarp_timestamps": timestamps}

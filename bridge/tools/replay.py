@@ -19,8 +19,8 @@ A scene is a folder of object folders (or one object folder alone). ROS bags
 replayed too, with a mapping file (``--mapping``, :mod:`bridge.tools.mapping`). Files are
 read with maintained readers: ``plyfile`` for PLY, ``pypcd4`` for PCD (ASCII,
 binary and binary_compressed), ``soundfile`` for WAV, ``numpy`` for CSV/NPY;
-each becomes a validated :mod:`core.payloads` object, so a bad file fails with
-an error naming the file and the problem before anything is sent.
+each array is checked and encoded by :mod:`bridge.tools.payloads` (the one encoder of raw
+objects), so a bad file fails with an error naming the file and the problem before anything is sent.
 """
 
 from __future__ import annotations
@@ -39,11 +39,11 @@ import soundfile
 from plyfile import PlyData, PlyElement, PlyParseError
 from pypcd4 import PointCloud as PcdCloud
 
-from bridge.client import Client, QueuedScene
-from bridge.models import SceneObject, TrainingObject
-from bridge.tools.simulate import DEFAULT_MAX_POINTS, add_service_arguments, raw_object
-from core.errors import InvalidInputError
-from core.payloads import Audio, FingerSeries, Interaction, ObjectRecording, PointCloud
+from bridge.client import DEFAULT_BASE_URL, Client, QueuedScene
+from bridge.errors import InvalidRecordingError
+from bridge.models import Audio, Finger, Interaction, RawObject, SceneObject, TrainingObject
+from bridge.tools import payloads
+from bridge.tools.payloads import DEFAULT_MAX_POINTS, RecordingLike
 
 if TYPE_CHECKING:
     from bridge.models import SceneRead
@@ -56,19 +56,22 @@ LABELS_FILE = "object.json"
 
 @dataclass(frozen=True)
 class RecordedObject:
-    """One object folder read back: its recording and, when present, its labels."""
+    """One object folder read back: its raw payload (clouds subsampled) and, when present, its labels."""
 
     path: Path
-    recording: ObjectRecording
+    raw: RawObject
     noun: str | None = None
     adjectives: tuple[str, ...] = ()
 
 
-def read_point_cloud(path: Path, scale: float = 1.0) -> PointCloud:
-    """x, y, z of a PLY (``vertex`` element) or PCD file, times ``scale`` (0.001 for millimetres)."""
+def read_point_cloud(path: Path, scale: float = 1.0) -> np.ndarray:
+    """x, y, z of a PLY (``vertex`` element) or PCD file as (n, 3) float64, times ``scale`` (0.001 for millimetres).
+
+    Points with NaN are dropped (PCD marks missing depth so); a file with no finite point is an error.
+    """
     suffix = path.suffix.lower()
     if suffix not in CLOUD_SUFFIXES:
-        raise InvalidInputError(str(path), f"is not a point cloud file ({', '.join(CLOUD_SUFFIXES)})")
+        raise InvalidRecordingError(str(path), f"is not a point cloud file ({', '.join(CLOUD_SUFFIXES)})")
     try:
         if suffix == ".ply":
             vertex = PlyData.read(str(path))["vertex"]
@@ -76,77 +79,119 @@ def read_point_cloud(path: Path, scale: float = 1.0) -> PointCloud:
         else:
             points = PcdCloud.from_path(path).numpy(("x", "y", "z")).astype(np.float64)
     except (KeyError, ValueError, OSError, PlyParseError) as error:
-        raise InvalidInputError(str(path), f"cannot be read as a point cloud: {error}") from None
-    points = points[np.all(np.isfinite(points), axis=1)] * scale  # PCD marks missing depth with NaN
-    return PointCloud(points)
+        raise InvalidRecordingError(str(path), f"cannot be read as a point cloud: {error}") from None
+    points = points[np.all(np.isfinite(points), axis=1)] * scale
+    if len(points) == 0:
+        raise InvalidRecordingError(str(path), "holds no finite point")
+    return points
 
 
-def read_audio(path: Path) -> Audio:
-    """A WAV (or any libsndfile format) as mono float PCM in [-1, 1]."""
+def read_audio(path: Path) -> tuple[np.ndarray, int]:
+    """A WAV (or any libsndfile format) as mono float PCM in [-1, 1], and its sample rate."""
     try:
         samples, sample_rate = soundfile.read(str(path), dtype="float32", always_2d=True)
     except (RuntimeError, soundfile.LibsndfileError) as error:
-        raise InvalidInputError(str(path), f"cannot be read as audio: {error}") from None
-    return Audio(samples.mean(axis=1), sample_rate)
+        raise InvalidRecordingError(str(path), f"cannot be read as audio: {error}") from None
+    return samples.mean(axis=1), int(sample_rate)
 
 
-def read_finger(path: Path) -> FingerSeries:
+def read_finger(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Haptic and proprioceptive series: a CSV with those two named columns, or an (n, 2) NPY."""
     if path.suffix.lower() == ".npy":
         table = np.load(path, allow_pickle=False)
         if table.ndim != 2 or table.shape[1] != 2:
-            raise InvalidInputError(str(path), f"must be an (n, 2) array of haptic, proprioceptive; got {table.shape}")
-        return FingerSeries(table[:, 0], table[:, 1])
+            raise InvalidRecordingError(
+                str(path), f"must be an (n, 2) array of haptic, proprioceptive; got {table.shape}"
+            )
+        return table[:, 0], table[:, 1]
     table = np.genfromtxt(path, delimiter=",", names=True, dtype=np.float64)
     names = table.dtype.names or ()
     if not {"haptic", "proprioceptive"} <= set(names):
-        raise InvalidInputError(str(path), f"needs the columns haptic and proprioceptive, has {list(names)}")
-    return FingerSeries(np.atleast_1d(table["haptic"]), np.atleast_1d(table["proprioceptive"]))
+        raise InvalidRecordingError(str(path), f"needs the columns haptic and proprioceptive, has {list(names)}")
+    return np.atleast_1d(table["haptic"]), np.atleast_1d(table["proprioceptive"])
 
 
-def read_object(folder: Path, scale: float = 1.0) -> RecordedObject:
-    """An object folder (layout in the module docstring) as a recording with its labels."""
-    interactions = []
-    for behaviour in sorted(child for child in folder.iterdir() if child.is_dir()):
-        audio = _first(behaviour, ("audio.wav", "audio.flac"))
-        finger = _first(behaviour, ("finger.csv", "finger.npy"))
-        interactions.append(
-            Interaction(
-                behaviour=behaviour.name,
-                before=read_point_cloud(_cloud(behaviour, "before"), scale),
-                after=read_point_cloud(_cloud(behaviour, "after"), scale),
-                audio=None if audio is None else read_audio(audio),
-                finger=None if finger is None else read_finger(finger),
-            )
-        )
-    recording = ObjectRecording(look=read_point_cloud(_cloud(folder, "look"), scale), interactions=tuple(interactions))
+def read_object(
+    folder: Path,
+    scale: float = 1.0,
+    *,
+    rng: np.random.Generator | None = None,
+    max_points: int = DEFAULT_MAX_POINTS,
+    behaviours: Sequence[str] | None = None,
+) -> RecordedObject:
+    """An object folder (layout in the module docstring) as a raw payload with its labels.
+
+    ``behaviours`` picks the interaction folders, in that order (a yarp session's markers); None:
+    every one, sorted by name. Clouds are subsampled with ``rng`` (seed 0 when None) in the order
+    look, then each interaction's before and after.
+    """
+    rng = np.random.default_rng(0) if rng is None else rng
+    if behaviours is None:
+        folders = sorted(child for child in folder.iterdir() if child.is_dir())
+    else:
+        folders = [folder / name for name in behaviours]
+        missing = [path.name for path in folders if not path.is_dir()]
+        if missing:
+            raise InvalidRecordingError(str(folder), f"has no folder {missing[0]!r} for the markers")
+    look_path = _cloud(folder, "look")
+    look = payloads.cloud(read_point_cloud(look_path, scale), rng, max_points, str(look_path))
+    interactions = [_read_interaction(behaviour, scale, rng, max_points) for behaviour in folders]
+    raw = RawObject(look=look, interactions=interactions)
     labels_path = folder / LABELS_FILE
     if not labels_path.exists():
-        return RecordedObject(folder, recording)
+        return RecordedObject(folder, raw)
     labels = json.loads(labels_path.read_text(encoding="utf-8"))
-    return RecordedObject(folder, recording, labels.get("noun"), tuple(labels.get("adjectives", ())))
+    return RecordedObject(folder, raw, labels.get("noun"), tuple(labels.get("adjectives", ())))
 
 
-def read_scene(folder: Path, scale: float = 1.0) -> list[RecordedObject]:
+def _read_interaction(behaviour: Path, scale: float, rng: np.random.Generator, max_points: int) -> Interaction:
+    clouds = {stem: _cloud(behaviour, stem) for stem in ("before", "after")}
+    audio_path = _first(behaviour, ("audio.wav", "audio.flac"))
+    finger_path = _first(behaviour, ("finger.csv", "finger.npy"))
+    audio: Audio | None = None
+    finger: Finger | None = None
+    if audio_path is not None:
+        audio = payloads.audio(*read_audio(audio_path), field=str(audio_path))
+    if finger_path is not None:
+        finger = payloads.finger(*read_finger(finger_path), field=str(finger_path))
+    before, after = (
+        payloads.cloud(read_point_cloud(path, scale), rng, max_points, str(path)) for path in clouds.values()
+    )
+    return Interaction(behaviour=behaviour.name, before=before, after=after, audio=audio, finger=finger)
+
+
+def read_scene(
+    folder: Path,
+    scale: float = 1.0,
+    *,
+    rng: np.random.Generator | None = None,
+    max_points: int = DEFAULT_MAX_POINTS,
+) -> list[RecordedObject]:
     """A scene folder (its subfolders are objects) or a single object folder."""
+    rng = np.random.default_rng(0) if rng is None else rng
     if _has_cloud(folder, "look"):
-        return [read_object(folder, scale)]
-    objects = [read_object(child, scale) for child in sorted(folder.iterdir()) if child.is_dir()]
+        return [read_object(folder, scale, rng=rng, max_points=max_points)]
+    objects = [
+        read_object(child, scale, rng=rng, max_points=max_points)
+        for child in sorted(folder.iterdir())
+        if child.is_dir()
+    ]
     if not objects:
-        raise InvalidInputError(str(folder), "holds neither a look.ply/look.pcd nor object folders")
+        raise InvalidRecordingError(str(folder), "holds neither a look.ply/look.pcd nor object folders")
     return objects
 
 
 def write_object(
     folder: Path,
-    recording: ObjectRecording,
+    recording: RecordingLike,
     *,
     noun: str | None = None,
     adjectives: Sequence[str] = (),
     cloud_format: str = "ply",
     finger_format: str = "csv",
 ) -> Path:
-    """Write a recording in the replay layout (the inverse of :func:`read_object`)."""
+    """Write a recording (the simulator's ``core.payloads.ObjectRecording``) in the replay layout: the
+    inverse of :func:`read_object`, for tests and for turning simulated runs into files."""
     folder.mkdir(parents=True, exist_ok=True)
     _write_cloud(folder / f"look.{cloud_format}", recording.look.points)
     for interaction in recording.interactions:
@@ -186,12 +231,19 @@ def _has_cloud(folder: Path, stem: str) -> bool:
 def _cloud(folder: Path, stem: str) -> Path:
     found = _first(folder, tuple(f"{stem}{suffix}" for suffix in CLOUD_SUFFIXES))
     if found is None:
-        raise InvalidInputError(str(folder), f"has no {stem}.ply or {stem}.pcd")
+        raise InvalidRecordingError(str(folder), f"has no {stem}.ply or {stem}.pcd")
     return found
 
 
 def _first(folder: Path, names: Sequence[str]) -> Path | None:
     return next((folder / name for name in names if (folder / name).exists()), None)
+
+
+def add_service_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--url``, ``--api-key``, ``--queue``: where a tool sends, as a robot's :class:`Client` would."""
+    parser.add_argument("--url", help=f"the service (default: $CONTEXTWEB_URL, else {DEFAULT_BASE_URL})")
+    parser.add_argument("--api-key", help="the write key (default: $CONTEXTWEB_API_KEY)")
+    parser.add_argument("--queue", help="offline queue file (scenes wait there while the service is away)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -262,7 +314,7 @@ def _run_recordings(args: argparse.Namespace, formats: dict[Path, str]) -> int:
     replayers = {"bag": replay_bag, "yarp": replay_yarp}
     try:
         if args.mapping is None:
-            raise InvalidInputError("--mapping", "is needed to replay a bag or a yarp session")
+            raise InvalidRecordingError("--mapping", "is needed to replay a bag or a yarp session")
         mapping = read_mapping(args.mapping)
         with Client(args.url, args.api_key, offline_queue=args.queue) as client:
             for path, kind in formats.items():
@@ -277,7 +329,7 @@ def _run_recordings(args: argparse.Namespace, formats: dict[Path, str]) -> int:
                     client, args.model_id, path, mapping, seed=args.seed, max_points=args.max_points,
                     on_answer=functools.partial(_print_scene_answer, path),
                 )  # fmt: skip
-    except (InvalidInputError, ImportError) as error:
+    except (InvalidRecordingError, ImportError) as error:
         print(f"contextweb bridge replay: {error}", file=sys.stderr)
         return 2
     return 0
@@ -293,7 +345,7 @@ def replay_scene(
     max_points: int = DEFAULT_MAX_POINTS,
 ) -> Any:
     """Post one recorded scene at the raw level; the service's analysis (or a QueuedScene)."""
-    objects = [SceneObject(raw=raw_object(obj.recording, rng, max_points)) for obj in read_scene(folder, scale)]
+    objects = [SceneObject(raw=obj.raw) for obj in read_scene(folder, scale, rng=rng, max_points=max_points)]
     return client.scenes.create(model_id, objects)
 
 
@@ -308,14 +360,12 @@ def replay_training(
 ) -> Any:
     """Post labelled object folders as training objects (one request each: raw objects are large), then fit."""
     for folder in folders:
-        obj = read_object(folder, scale)
+        obj = read_object(folder, scale, rng=rng, max_points=max_points)
         if obj.noun is None:
-            raise InvalidInputError(
+            raise InvalidRecordingError(
                 str(folder / LABELS_FILE), "is missing: a training object needs its noun and adjectives"
             )
-        labelled = TrainingObject(
-            noun=obj.noun, adjectives=list(obj.adjectives), raw=raw_object(obj.recording, rng, max_points)
-        )
+        labelled = TrainingObject(noun=obj.noun, adjectives=list(obj.adjectives), raw=obj.raw)
         client.training.add_objects(model_id, [labelled])
     return client.training.fit(model_id)
 

@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bridge.errors import InvalidRecordingError
+from bridge.models import RawObject
 from bridge.tools.mapping import Windows
-from core.errors import InvalidInputError
-from core.payloads import FingerSeries, ObjectRecording
 
 NANOSECONDS = 1_000_000_000
 
@@ -62,10 +62,10 @@ class ScenePlan:
 
 @dataclass(frozen=True)
 class SegmentedScene:
-    """One scene cut from a recording, read and checked: its plan, recordings and idempotency key."""
+    """One scene cut from a recording, read, checked and encoded: its plan, raw objects and idempotency key."""
 
     plan: ScenePlan
-    recordings: list[ObjectRecording]
+    recordings: list[RawObject]
     key: str
 
 
@@ -79,15 +79,21 @@ def format_time(time: int, origin: int) -> str:
     return f"t = {(time - origin) / NANOSECONDS:.3f} s (stamp {time} ns)"
 
 
-def plan_from_markers(markers: Iterable[tuple[int, str]], start: int, stop: int, stream: str) -> list[ScenePlan]:
-    """Scenes from ``(time, text)`` markers in time order; ``start``/``stop`` bound the recording."""
+def plan_from_markers(
+    markers: Iterable[tuple[int, str]], start: int, stop: int, stream: str, *, cut: bool = False
+) -> list[ScenePlan]:
+    """Scenes from ``(time, text)`` markers in time order; ``start``/``stop`` bound the recording.
+
+    ``cut``: the recording was cut short at ``stop`` (a truncated bag), so an interaction still open
+    there ends with it instead of being an error (its scene is the cut one, which is not posted).
+    """
     scenes: list[ScenePlan] = []
     scene: ScenePlan | None = None
     looking: ObjectPlan | None = None
     open_interaction: tuple[int, ObjectPlan, str] | None = None
 
-    def problem(time: int, text: str, what: str) -> InvalidInputError:
-        return InvalidInputError(stream, f"marker {text!r} at {format_time(time, start)}: {what}")
+    def problem(time: int, text: str, what: str) -> InvalidRecordingError:
+        return InvalidRecordingError(stream, f"marker {text!r} at {format_time(time, start)}: {what}")
 
     def close_look(time: int) -> None:
         nonlocal looking
@@ -127,7 +133,10 @@ def plan_from_markers(markers: Iterable[tuple[int, str]], start: int, stop: int,
             open_interaction = None
         else:
             raise problem(time, text, "not a marker (scene | look <object> | begin <object> <behaviour> | end)")
-    if open_interaction is not None:
+    if open_interaction is not None and cut:
+        begun, obj, behaviour = open_interaction
+        obj.interactions.append(InteractionPlan(behaviour, Window(begun, stop)))
+    elif open_interaction is not None:
         raise problem(open_interaction[0], "begin", "the recording ends before its end marker")
     _close_scene_windows(scenes, stop)
     return [scene for scene in scenes if scene.objects]
@@ -162,8 +171,9 @@ def plan_from_windows(schedule: Windows, start: int, stop: int) -> list[ScenePla
 
 def finger_series(
     joint_times: Sequence[int], angles: Sequence[float], touch_times: Sequence[int], pressures: Sequence[float]
-) -> FingerSeries:
-    """One finger sample per joint reading, the haptic value linearly interpolated at its instant.
+) -> tuple[np.ndarray, np.ndarray]:
+    """Haptic and proprioceptive series: one sample per joint reading, the haptic value linearly
+    interpolated at its instant.
 
     A tactile sensor and the joint encoders are rarely sampled together;
     interpolating the haptic series onto the joint's clock keeps the joint's
@@ -171,4 +181,4 @@ def finger_series(
     haptic readings' span).
     """
     haptic = np.interp(np.asarray(joint_times, dtype=np.float64), np.asarray(touch_times, dtype=np.float64), pressures)
-    return FingerSeries(haptic, np.asarray(angles, dtype=np.float64))
+    return haptic, np.asarray(angles, dtype=np.float64)

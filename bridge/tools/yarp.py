@@ -32,15 +32,18 @@ from __future__ import annotations
 import hashlib
 import shlex
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from bridge.client import Client, QueuedScene
-from bridge.models import SceneRead
-from bridge.tools.bags import post_scenes, reduce_values
+from bridge.errors import InvalidRecordingError
+from bridge.models import Finger, RawObject, SceneRead
+from bridge.tools import payloads
+from bridge.tools.bags import post_scenes, reduce_values, scene_rng
 from bridge.tools.mapping import Mapping, Proprioception
+from bridge.tools.payloads import DEFAULT_MAX_POINTS
 from bridge.tools.replay import read_object
 from bridge.tools.segments import (
     NANOSECONDS,
@@ -54,9 +57,6 @@ from bridge.tools.segments import (
     plan_from_markers,
     plan_from_windows,
 )
-from bridge.tools.simulate import DEFAULT_MAX_POINTS
-from core.errors import InvalidInputError
-from core.payloads import FingerSeries, ObjectRecording
 
 DUMP_FILES = ("data.log", "info.log")
 
@@ -78,9 +78,9 @@ class PortLog:
         except ValueError as error:
             raise self.problem(line, f"a value is not a number ({error})") from None
 
-    def problem(self, line: int, what: str) -> InvalidInputError:
+    def problem(self, line: int, what: str) -> InvalidRecordingError:
         seconds = self.times[line] / NANOSECONDS
-        return InvalidInputError(
+        return InvalidRecordingError(
             f"{self.folder / 'data.log'}", f"line {self.line_numbers[line]} (stamp {seconds:.6f} s): {what}"
         )
 
@@ -100,10 +100,10 @@ def read_port_log(folder: Path, timestamps: int = 1) -> PortLog:
     """A yarpdatadumper folder's ``data.log`` (its ``info.log`` must say ``Type: Bottle``)."""
     for name in DUMP_FILES:
         if not (folder / name).is_file():
-            raise InvalidInputError(str(folder), f"is not a yarpdatadumper folder: it has no {name}")
+            raise InvalidRecordingError(str(folder), f"is not a yarpdatadumper folder: it has no {name}")
     info = (folder / "info.log").read_text(encoding="utf-8", errors="replace")
     if "Type: Bottle" not in info:
-        raise InvalidInputError(str(folder / "info.log"), "does not say 'Type: Bottle': only bottle dumps are read")
+        raise InvalidRecordingError(str(folder / "info.log"), "does not say 'Type: Bottle': only bottle dumps are read")
     times, values, line_numbers = [], [], []
     lines = (folder / "data.log").read_text(encoding="utf-8", errors="replace").splitlines()
     for number, line in enumerate(lines, start=1):
@@ -113,18 +113,18 @@ def read_port_log(folder: Path, timestamps: int = 1) -> PortLog:
             words = shlex.split(line)
             stamp = float(words[1])
         except (ValueError, IndexError) as error:
-            raise InvalidInputError(
+            raise InvalidRecordingError(
                 str(folder / "data.log"), f"line {number} is not '<counter> <stamp> <values>': {error}"
             ) from None
         if any("(" in word for word in words[1 + timestamps :]):
-            raise InvalidInputError(str(folder / "data.log"), f"line {number} holds a nested bottle: not supported")
+            raise InvalidRecordingError(str(folder / "data.log"), f"line {number} holds a nested bottle: not supported")
         times.append(round(stamp * NANOSECONDS))
         values.append(words[1 + timestamps :])
         line_numbers.append(number)
     stamps = np.asarray(times, dtype=np.int64)
     if stamps.size and np.any(np.diff(stamps) < 0):
         back = line_numbers[int(np.argmax(np.diff(stamps) < 0)) + 1]
-        raise InvalidInputError(str(folder / "data.log"), f"line {back} goes back in time")
+        raise InvalidRecordingError(str(folder / "data.log"), f"line {back} goes back in time")
     return PortLog(folder, stamps, values, line_numbers)
 
 
@@ -133,11 +133,13 @@ class YarpSession:
 
     def __init__(self, path: Path, mapping: Mapping) -> None:
         if mapping.markers is None and mapping.windows is None:
-            raise InvalidInputError("mapping.segmentation", "is missing")
+            raise InvalidRecordingError("mapping.segmentation", "is missing")
         if len({mapping.clouds.look, mapping.clouds.before, mapping.clouds.after}) != 1:
-            raise InvalidInputError("mapping.clouds", "of a yarp session is one folder of object folders: give folder")
+            raise InvalidRecordingError(
+                "mapping.clouds", "of a yarp session is one folder of object folders: give folder"
+            )
         if mapping.proprioception is not None and not isinstance(mapping.proprioception.joint, int):
-            raise InvalidInputError("mapping.proprioception", "a yarp port is read by column, not by joint name")
+            raise InvalidRecordingError("mapping.proprioception", "a yarp port is read by column, not by joint name")
         self.path = path
         self.mapping = mapping
         self.clouds = path / mapping.clouds.look
@@ -147,7 +149,7 @@ class YarpSession:
             if role in ("proprioception", "haptics", "segmentation.markers")
         }
         if not self.logs or all(log.times.size == 0 for log in self.logs.values()):
-            raise InvalidInputError(str(path), "holds no stamped line in the mapped dump folders")
+            raise InvalidRecordingError(str(path), "holds no stamped line in the mapped dump folders")
         stamped = [log.times for log in self.logs.values() if log.times.size]
         self.start = int(min(times[0] for times in stamped))
         self.stop = int(max(times[-1] for times in stamped))
@@ -167,31 +169,33 @@ class YarpSession:
         markers = [(int(time), " ".join(words)) for time, words in zip(log.times, log.values, strict=True)]
         return plan_from_markers(markers, self.start, self.stop, str(log.folder / "data.log"))
 
-    def scenes(self, plans: Sequence[ScenePlan] | None = None) -> Iterator[SegmentedScene]:
-        """Each scene read whole and checked (nothing of a bad scene is returned)."""
+    def scenes(
+        self, plans: Sequence[ScenePlan] | None = None, *, seed: int = 0, max_points: int = DEFAULT_MAX_POINTS
+    ) -> Iterator[SegmentedScene]:
+        """Each scene read whole, checked and encoded (nothing of a bad scene is returned); clouds are
+        subsampled as a bag's are (:func:`bridge.tools.bags.scene_rng`)."""
         identity = self.identity
         for plan in self.plans() if plans is None else plans:
-            recordings = [self._recording(obj) for obj in plan.objects]
-            yield SegmentedScene(plan, recordings, f"yarp-{identity}-{plan.window.start}")
+            key = f"yarp-{identity}-{plan.window.start}"
+            rng = scene_rng(seed, key)
+            recordings = [self._recording(obj, rng, max_points) for obj in plan.objects]
+            yield SegmentedScene(plan, recordings, key)
 
-    def _recording(self, obj: ObjectPlan) -> ObjectRecording:
-        if not (self.clouds / obj.name).is_dir():
-            raise InvalidInputError(str(self.clouds / obj.name), f"is missing: the markers name object {obj.name!r}")
-        recording = read_object(self.clouds / obj.name, self.mapping.clouds.scale).recording
-        by_behaviour = {interaction.behaviour: interaction for interaction in recording.interactions}
-        interactions = []
-        for plan in obj.interactions:
-            if plan.behaviour not in by_behaviour:
-                raise InvalidInputError(
-                    str(self.clouds / obj.name), f"has no folder {plan.behaviour!r} for the markers"
-                )
-            interaction = by_behaviour[plan.behaviour]
-            if self.mapping.proprioception is not None:  # the logs' finger series replaces a finger.csv
-                interaction = replace(interaction, finger=self._finger(plan))
-            interactions.append(interaction)
-        return ObjectRecording(recording.look, tuple(interactions))
+    def _recording(self, obj: ObjectPlan, rng: np.random.Generator, max_points: int) -> RawObject:
+        folder = self.clouds / obj.name
+        if not folder.is_dir():
+            raise InvalidRecordingError(str(folder), f"is missing: the markers name object {obj.name!r}")
+        behaviours = [plan.behaviour for plan in obj.interactions]
+        raw = read_object(folder, self.mapping.clouds.scale, rng=rng, max_points=max_points, behaviours=behaviours).raw
+        if self.mapping.proprioception is None:
+            return raw
+        interactions = [  # the logs' finger series replaces a finger.csv
+            interaction.model_copy(update={"finger": self._finger(plan)})
+            for interaction, plan in zip(raw.interactions, obj.interactions, strict=True)
+        ]
+        return raw.model_copy(update={"interactions": interactions})
 
-    def _finger(self, plan: InteractionPlan) -> FingerSeries | None:
+    def _finger(self, plan: InteractionPlan) -> Finger | None:
         joint, haptics = self.mapping.proprioception, self.mapping.haptics
         if (
             joint is None
@@ -206,7 +210,7 @@ class YarpSession:
             return None
         for log, lines in ((joints, joint_lines), (skin, skin_lines)):
             if lines.size == 0:
-                raise InvalidInputError(
+                raise InvalidRecordingError(
                     str(log.folder / "data.log"),
                     f"has no line in the {plan.behaviour!r} window from {format_time(plan.window.start, self.start)}"
                     f" to {format_time(plan.window.stop, self.start)}, though the other finger port has",
@@ -215,9 +219,10 @@ class YarpSession:
         pressures = [
             reduce_values(skin.numbers(int(line), 0), haptics, _problem_at(skin, int(line))) for line in skin_lines
         ]
+        series = finger_series(joints.times[joint_lines], angles, skin.times[skin_lines], pressures)
         try:
-            return finger_series(joints.times[joint_lines], angles, skin.times[skin_lines], pressures)
-        except InvalidInputError as error:
+            return payloads.finger(*series)
+        except InvalidRecordingError as error:
             raise joints.problem(int(joint_lines[0]), str(error)) from None
 
     def _angle(self, log: PortLog, line: int, joint: Proprioception) -> float:
@@ -249,5 +254,5 @@ def replay_yarp(
 ) -> list[SceneRead | QueuedScene]:
     """Post the session's scenes in order, each with its key (as :func:`bridge.tools.bags.replay_bag`)."""
     session = YarpSession(path, mapping)
-    scenes = session.scenes(session.plans()[:limit])
-    return post_scenes(client, model_id, scenes, seed=seed, max_points=max_points, on_answer=on_answer)
+    scenes = session.scenes(session.plans()[:limit], seed=seed, max_points=max_points)
+    return post_scenes(client, model_id, scenes, on_answer=on_answer)

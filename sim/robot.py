@@ -15,8 +15,9 @@ Input levels of a scene object:
   each cloud subsampled to ``--max-points`` so that a scene of five objects
   (27 clouds each) stays within the service's body limit (docs/bridge.md).
 
-This is a development tool: it imports ``core`` (the world, the feature
-extraction); the client does not.
+This is a development tool of the server's distribution (it imports ``sim`` and ``core``: the
+world, the feature extraction); it encodes raw objects with the robot's own encoder
+(:mod:`bridge.tools.payloads`), and the client imports none of it.
 """
 
 from __future__ import annotations
@@ -30,18 +31,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
-from bridge.client import DEFAULT_BASE_URL, Client, QueuedScene
+from bridge.client import Client, QueuedScene
 from bridge.models import (
-    Audio,
-    Finger,
     FitRead,
-    Interaction,
-    PointCloud,
-    RawObject,
     SceneObject,
     SceneRead,
     TrainingObject,
 )
+from bridge.tools.payloads import DEFAULT_MAX_POINTS, raw_object
+from bridge.tools.replay import add_service_arguments
 from core.features.extract import recording_features
 from core.payloads import ObjectRecording
 from sim.world import Scene, World, WorldConfig, WorldObject, generate_scenes
@@ -49,7 +47,6 @@ from sim.world import Scene, World, WorldConfig, WorldObject, generate_scenes
 LEVELS = ("concepts", "features", "raw")
 #: Largest body per training request; the service's default limit is 8 MiB.
 TRAINING_BATCH_BYTES = 4 * 1024 * 1024
-DEFAULT_MAX_POINTS = 1_500
 
 
 @dataclass
@@ -63,13 +60,6 @@ class SimulationSummary:
     last_posterior: list[float] = field(default_factory=list)
     map_contexts: list[int] = field(default_factory=list)
     fit: FitRead | None = None
-
-
-def add_service_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--url``, ``--api-key``, ``--queue``: where a tool sends, as a robot's :class:`Client` would."""
-    parser.add_argument("--url", help=f"the service (default: $CONTEXTWEB_URL, else {DEFAULT_BASE_URL})")
-    parser.add_argument("--api-key", help="the write key (default: $CONTEXTWEB_API_KEY)")
-    parser.add_argument("--queue", help="offline queue file (scenes wait there while the service is away)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -245,34 +235,6 @@ def scene_objects(
     if level == "features":
         return [_feature_object(*recording_features(recording)) for recording in recordings]
     return [SceneObject(raw=raw_object(recording, rng, max_points)) for recording in recordings]
-
-
-def raw_object(recording: ObjectRecording, rng: np.random.Generator, max_points: int) -> RawObject:
-    """The bridge's raw payload of a recording, each cloud subsampled to at most ``max_points``."""
-    return RawObject(
-        look=PointCloud.of(_subsample(recording.look.points, rng, max_points)),
-        interactions=[
-            Interaction(
-                behaviour=interaction.behaviour,
-                before=PointCloud.of(_subsample(interaction.before.points, rng, max_points)),
-                after=PointCloud.of(_subsample(interaction.after.points, rng, max_points)),
-                audio=None
-                if interaction.audio is None
-                else Audio.of(interaction.audio.samples, interaction.audio.sample_rate),
-                finger=None
-                if interaction.finger is None
-                else Finger.of(interaction.finger.haptic, interaction.finger.proprioceptive),
-            )
-            for interaction in recording.interactions
-        ],
-    )
-
-
-def _subsample(points: np.ndarray, rng: np.random.Generator, max_points: int) -> np.ndarray:
-    """A uniform random subset: keeps the histograms' shapes (they are normalised) at a fraction of the bytes."""
-    if len(points) <= max_points:
-        return points
-    return points[np.sort(rng.choice(len(points), size=max_points, replace=False))]
 
 
 def _format_posterior(posterior: Sequence[float]) -> str:

@@ -1,6 +1,7 @@
 """Checkpoints of the Incremental-LDA corpus (docs/scaling.md, "Checkpoints"): a start reads the latest
-checkpoint and the rows written since, and continues bit for bit like an uninterrupted run; a
-checkpoint that disagrees with the token rows is named by ``models check`` and rebuilt by ``repair``."""
+checkpoint and the token batches written since, and continues bit for bit like an uninterrupted run; a
+checkpoint that disagrees with the batches (all kept: none compacted yet) is named by ``models check``
+and rebuilt by ``repair``."""
 
 from __future__ import annotations
 
@@ -78,9 +79,10 @@ def test_a_checkpointed_model_restarts_from_checkpoint_and_tail_bit_for_bit(data
     try:
         start = _start(engine, restarted)
         assert start.checkpoint is not None and start.checkpoint.scene_count == 21
-        tail_scenes = set(start.tail[:, 1].tolist())
-        assert {21, 22, 23} <= tail_scenes, "the 3 scenes after the checkpoint are its tail"
-        assert min(tail_scenes) < 21, "tokens of checkpointed scenes reassigned since are in the tail"
+        tail_scenes = set(start.tail.added[:, 0].tolist())
+        assert tail_scenes == {21, 22, 23}, "the 3 scenes after the checkpoint are its tail"
+        assert start.tail.moved.size, "tokens of checkpointed scenes reassigned since are in the tail"
+        assert start.tail.moved[:, 0].max() < start.checkpoint.token_count
     finally:
         engine.dispose()
 
@@ -97,7 +99,7 @@ def _corrupt_checkpoint(engine: Engine, model_id: str) -> tuple[int, int]:
     start = _start(engine, model_id)
     checkpoint = start.checkpoint
     assert checkpoint is not None
-    moved_since = set(start.tail[:, 0].tolist())
+    moved_since = set(start.tail.moved[:, 0].tolist())
     token = next(i for i in range(checkpoint.token_count) if i not in moved_since)
     contexts = checkpoint.contexts.copy()
     contexts[token] = (contexts[token] + 1) % checkpoint.context_count

@@ -96,7 +96,7 @@ def test_upgrading_converts_old_answers_byte_for_byte_and_downgrading_restores_t
                     ),
                     dict(zip(("id", "scene", "word", "context", "version"), token, strict=True)),
                 )
-        _migrate(engine, "head")
+        _migrate(engine, "0006")  # 0007 replaces the token table (tests/test_migration_0007.py)
         assert _tokens(engine) == TOKENS
         if engine.dialect.name == "sqlite":
             assert "WITHOUT ROWID" in _token_table_sql(engine)

@@ -173,3 +173,35 @@ def test_packed_arrays_round_trip_in_the_narrowest_type_and_damage_is_refused() 
     for damaged in (blob[: len(blob) // 2], b"junk", bytes(len(blob))):
         with pytest.raises(ValueError):
             unpack_arrays(damaged)
+
+
+def test_a_server_behind_the_compacted_batches_reloads_and_one_within_an_interval_catches_up(
+    database_url: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Two servers on one database: while the first learns 2 intervals' worth of scenes, the batches
+    the second needs are deleted by the checkpoints (compaction); on its next request the second
+    reloads from the checkpoint instead of catching up, then catches up incrementally from there,
+    and its memory equals the writer's bit for bit."""
+    settings = make_settings(database_url, checkpoint_interval=INTERVAL)
+    scenes = concept_scenes(3 * INTERVAL + 2, seed=5)
+    with TestClient(create_app(settings)) as writer, TestClient(create_app(settings)) as follower:
+        model_id = _create(writer)
+        _post(writer, model_id, scenes[:2])
+        assert follower.get(f"/v1/models/{model_id}/contexts").status_code == 200  # follows at version 2 scenes
+        _post(writer, model_id, scenes[2 : 2 * INTERVAL + 1])  # checkpoints after scenes 7 and 14: 7 compacted
+        engine = create_database_engine(database_url)
+        read, _ = create_session_makers(engine)
+        with read() as session:
+            compacted = lda_repository.compacted_version(session, model_id)
+        engine.dispose()
+        assert compacted > 0
+        with caplog.at_level("INFO", logger="contextweb"):
+            assert follower.get(f"/v1/models/{model_id}/contexts").status_code == 200
+        assert any("folded into its checkpoint" in record.getMessage() for record in caplog.records)
+        _same_state(_memory(follower, model_id), _memory(writer, model_id))
+        caplog.clear()
+        _post(writer, model_id, scenes[2 * INTERVAL + 1 :])  # crosses the checkpoint after scene 21
+        with caplog.at_level("INFO", logger="contextweb"):
+            assert follower.get(f"/v1/models/{model_id}/contexts").status_code == 200
+        assert not any("folded into its checkpoint" in record.getMessage() for record in caplog.records)
+        _same_state(_memory(follower, model_id), _memory(writer, model_id))

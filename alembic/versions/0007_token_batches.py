@@ -104,12 +104,7 @@ def upgrade() -> None:
 
 def _checkpoint_tokens(connection: sa.Connection, model_id: str) -> None:
     """One checkpoint of the model's token rows at its current version, replacing any it had."""
-    rows = connection.execute(
-        sa.select(_token.c.scene_id, _token.c.word_id, _token.c.context)
-        .where(_token.c.model_id == model_id)
-        .order_by(_token.c.id)
-    ).all()
-    tokens = np.array(rows, dtype=np.int64).reshape(-1, 3)
+    tokens = _token_columns(connection, model_id)
     state = connection.execute(
         sa.select(_state.c.version, _state.c.context_count).where(_state.c.model_id == model_id)
     ).first()
@@ -135,6 +130,27 @@ def _checkpoint_tokens(connection: sa.Connection, model_id: str) -> None:
             created_at=sa.func.now(),
         )
     )
+
+
+#: Token rows read or written per round trip (bounded memory at millions of rows).
+_CHUNK = 200_000
+
+
+def _token_columns(connection: sa.Connection, model_id: str) -> np.ndarray:
+    """(scene, word, context) of the model's token rows by id, read through the driver in chunks
+    (numpy converts the driver's tuples ≈ 25× faster than SQLAlchemy's Rows: docs/benchmarks.md)."""
+    placeholder = "?" if connection.dialect.paramstyle == "qmark" else "%s"
+    cursor = connection.connection.dbapi_connection.cursor()
+    try:
+        cursor.execute(
+            f"SELECT scene_id, word_id, context FROM token WHERE model_id = {placeholder} ORDER BY id", (model_id,)
+        )
+        chunks = []
+        while rows := cursor.fetchmany(_CHUNK):
+            chunks.append(np.array(rows, dtype=np.int64).reshape(-1, 3))
+    finally:
+        cursor.close()
+    return np.concatenate(chunks) if chunks else np.zeros((0, 3), dtype=np.int64)
 
 
 def downgrade() -> None:
@@ -189,13 +205,12 @@ def _token_rows(connection: sa.Connection, model_id: str) -> None:
         contexts = np.concatenate([contexts, new_contexts.astype(np.int64)])
         scenes = np.concatenate([scenes, np.full(new_words.shape[0], scene_id or 0, dtype=np.int64)])
         versions = np.concatenate([versions, np.full(new_words.shape[0], version, dtype=np.int64)])
-    if words.size:
+    columns = np.stack([np.arange(words.shape[0]), scenes, words, contexts, versions], axis=1).tolist()
+    for start in range(0, len(columns), _CHUNK):
         connection.execute(
             sa.insert(_token),
             [
                 {"model_id": model_id, "id": i, "scene_id": s, "word_id": w, "context": k, "version": v}
-                for i, (s, w, k, v) in enumerate(
-                    zip(scenes.tolist(), words.tolist(), contexts.tolist(), versions.tolist(), strict=True)
-                )
+                for i, s, w, k, v in columns[start : start + _CHUNK]
             ],
         )

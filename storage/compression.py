@@ -167,8 +167,8 @@ def unpack_small_arrays(blob: bytes) -> list[np.ndarray]:
         else:
             inflater = zlib.decompressobj(-15)
             body = inflater.decompress(blob[1:]) + inflater.flush()
-            if not inflater.eof:
-                raise ValueError("the deflated stream is cut short")
+            if not inflater.eof or inflater.unused_data:
+                raise ValueError("the deflated stream is cut short or followed by other bytes")
         count, offset = body[0], 1
         shapes = []
         for _ in range(count):

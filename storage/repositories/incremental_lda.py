@@ -69,7 +69,7 @@ class StoredCheckpoint:
 
 @dataclass(frozen=True)
 class StoredStart:
-    """What a start loads: the words, the latest checkpoint and the rows written since it."""
+    """What a start loads: the words, the latest checkpoint and the token batches written since it."""
 
     word_names: list[str]
     word_kinds: list[str | None]

@@ -278,7 +278,8 @@ class ModelWriter:
         self.incremental_lda.catch_up(
             new_words=[name for name, _ in changes.new_words],
             n_contexts=changes.context_count,
-            tokens=changes.tokens,
+            moved=changes.tokens.moved,
+            added=changes.tokens.added,
             count_entries=changes.count_entries,
             scene_count=changes.scene_count,
             rng_state=changes.state["rng_state"],
@@ -495,24 +496,22 @@ def load_runtime(session: Session, row: Model) -> ModelRuntime:
 
 
 def stored_incremental_lda(stored: lda_repository.StoredStart, hyperparameters: dict[str, Any]) -> IncrementalLDA:
-    """The Incremental-LDA of a start: the checkpoint's arrays, then the tail caught up on top (the
-    same catch-up as another process's writes), then the whole of n_kw checked against the
-    stored n_kw entries. Without a checkpoint the tail is every token, read as the arrays."""
-    base = stored.checkpoint
+    """The Incremental-LDA of a start: the checkpoint's arrays, then the batches since caught up on
+    top (the same catch-up as another process's writes), then the whole of n_kw checked against the
+    stored n_kw entries. Without a checkpoint the batches' tokens are read as the arrays."""
+    base, tail = stored.checkpoint, stored.tail
     if base is None:
-        tail = stored.tail
-        scene_lengths = np.bincount(tail[:, 1], minlength=stored.scene_count)
+        added = tail.added
+        scene_lengths = np.bincount(added[:, 0], minlength=stored.scene_count)
         base = lda_repository.StoredCheckpoint(
             version=stored.version,
             context_count=stored.context_count,
             word_count=len(stored.word_names),
-            words=tail[:, 2].astype(np.int32),
-            contexts=tail[:, 3].astype(np.int32),
+            words=added[:, 1].astype(np.int32),
+            contexts=added[:, 2].astype(np.int32),
             doc_offsets=np.concatenate([[0], np.cumsum(scene_lengths)]).astype(np.int32),
         )
-        tail = tail[:0]
-    else:
-        tail = stored.tail
+        tail = lda_repository.ReplayedTokens.none(base.token_count)
     n_contexts, n_words = base.context_count, base.word_count
     incremental_lda = IncrementalLDA.from_state(
         ContextModelState(
@@ -529,7 +528,8 @@ def stored_incremental_lda(stored: lda_repository.StoredStart, hyperparameters: 
     incremental_lda.catch_up(
         new_words=stored.word_names[n_words:],
         n_contexts=stored.context_count,
-        tokens=tail,
+        moved=tail.moved,
+        added=tail.added,
         count_entries=np.zeros((0, 3), dtype=np.int64),
         scene_count=stored.scene_count,
         rng_state=stored.state["rng_state"],
@@ -556,11 +556,24 @@ def _counts(words: np.ndarray, contexts: np.ndarray, n_contexts: int, n_words: i
 
 def catch_up(session: Session, writer: ModelWriter) -> bool:
     """Bring the model to the stored version from the rows written since its own (in one snapshot, or
-    under the model's write lock); False when the model is gone. Raises what the load would: an
-    error here leaves memory unproven, and the caller has the writer undo it."""
-    changes = lda_repository.load_changes(
-        session, writer.id, since_version=writer.version, word_count=len(writer.incremental_lda.vocabulary)
-    )
+    under the model's write lock); False when the model is gone. A model so far behind that the
+    batches it needs were folded into a checkpoint is reloaded from that snapshot instead. Raises
+    what the load would: an error here leaves memory unproven, and the caller has the writer undo it."""
+    try:
+        changes = lda_repository.load_changes(
+            session,
+            writer.id,
+            since_version=writer.version,
+            word_count=len(writer.incremental_lda.vocabulary),
+            token_count=writer.incremental_lda.lda_state.n_tokens,
+        )
+    except lda_repository.BehindCompactionError as behind:
+        row = model_repository.get_model(session, writer.id)
+        if row is None:
+            return False
+        logger.info("%s: reloading it from its checkpoint", behind)
+        writer.replace(load_runtime(session, row).writer)
+        return True
     if changes is None:
         return False
     if changes.version == writer.version:

@@ -38,7 +38,9 @@ than the last percent of size.
 from __future__ import annotations
 
 import io
+import struct
 import zlib
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -163,3 +165,58 @@ def _narrowest(array: np.ndarray) -> np.ndarray:
         if info.min <= low and high <= info.max:
             return values.astype(dtype)
     return values.astype(np.int64)
+
+
+#: Format bytes of :func:`pack_small_arrays`: the arrays as they are, or raw-deflated (the shorter).
+_SMALL_ARRAYS_PLAIN = 1
+_SMALL_ARRAYS_DEFLATED = 2
+_SMALL_HEADER = struct.Struct("<IB")  # per array: its length and its item size (1, 2, 4 or 8 bytes)
+
+
+def pack_small_arrays(arrays: Sequence[np.ndarray]) -> bytes:
+    """Non-negative integer arrays of a few hundred values (one token batch) as a short blob.
+
+    :func:`pack_arrays`' ``.npz`` spends about 250 bytes a member on zip and ``.npy`` headers
+    (a 78-token scene with 20 reassigned tokens took 509 bytes); here a member costs 5 bytes of
+    header, each array is in its narrowest unsigned type, and the whole is raw-deflated when that
+    is shorter (the same scene: 190 bytes). The arrays come back in order, in their stored types.
+    """
+    narrow = [_narrowest(np.asarray(array)) for array in arrays]
+    if any(array.ndim != 1 or array.dtype.kind != "u" for array in narrow):
+        raise ValueError("pack_small_arrays stores one-dimensional non-negative integer arrays only")
+    header = bytes([len(narrow)]) + b"".join(_SMALL_HEADER.pack(a.shape[0], a.dtype.itemsize) for a in narrow)
+    body = header + b"".join(a.astype(a.dtype.newbyteorder("<")).tobytes() for a in narrow)
+    deflater = zlib.compressobj(9, zlib.DEFLATED, -15)
+    deflated = deflater.compress(body) + deflater.flush()
+    if len(deflated) < len(body):
+        return bytes([_SMALL_ARRAYS_DEFLATED]) + deflated
+    return bytes([_SMALL_ARRAYS_PLAIN]) + body
+
+
+def unpack_small_arrays(blob: bytes) -> list[np.ndarray]:
+    """The arrays of :func:`pack_small_arrays` (raises ValueError on a damaged blob)."""
+    try:
+        if not blob or blob[0] not in (_SMALL_ARRAYS_PLAIN, _SMALL_ARRAYS_DEFLATED):
+            raise ValueError(f"unknown format byte {blob[:1]!r}")
+        if blob[0] == _SMALL_ARRAYS_PLAIN:
+            body = blob[1:]
+        else:
+            inflater = zlib.decompressobj(-15)
+            body = inflater.decompress(blob[1:]) + inflater.flush()
+            if not inflater.eof or inflater.unused_data:
+                raise ValueError("the deflated stream is cut short or followed by other bytes")
+        count, offset = body[0], 1
+        shapes = []
+        for _ in range(count):
+            length, itemsize = _SMALL_HEADER.unpack_from(body, offset)
+            shapes.append((length, np.dtype(f"<u{itemsize}")))
+            offset += _SMALL_HEADER.size
+        arrays = []
+        for length, dtype in shapes:
+            arrays.append(np.frombuffer(body, dtype=dtype, count=length, offset=offset).astype(dtype.newbyteorder("=")))
+            offset += length * dtype.itemsize
+        if offset != len(body):
+            raise ValueError(f"{len(body) - offset} bytes after the arrays")
+        return arrays
+    except (zlib.error, struct.error, IndexError, TypeError, ValueError) as error:
+        raise ValueError(f"not a packed small-array blob ({type(error).__name__}: {error})") from error

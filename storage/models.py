@@ -1,15 +1,16 @@
-"""The tables, SQLAlchemy 2 style: one row per model, word, scene, token and n_kw count.
+"""The tables, SQLAlchemy 2 style: one row per model, word, scene, token batch and n_kw count.
 
 A model's Incremental-LDA state is stored incrementally: every learned scene
-adds its ``scene`` row and its ``token`` rows (word id and context assignment),
-rewrites the ``context_word_count`` entries (n_kw of Eq. 5) and the tokens whose
-assignment the scene's sweeps changed, and replaces the small
-``incremental_lda_state`` row (K, scene count, random state) — all in the
+adds its ``scene`` row and one ``token_batch`` row (its new tokens' words and
+contexts, and the earlier tokens its sweeps reassigned, packed), rewrites the
+``context_word_count`` entries (n_kw of Eq. 5) that moved, and replaces the
+small ``incremental_lda_state`` row (K, scene count, random state) — all in the
 scene's transaction; every ``checkpoint_interval``-th scene also replaces the
-model's ``incremental_lda_checkpoint`` (the whole corpus as packed arrays). The
-invariants: for every model, ``context_word_count`` equals the counts of
-``token`` rows grouped by (context, word), and the checkpoint equals the token
-rows not written since its version.
+model's ``incremental_lda_checkpoint`` (the whole corpus as packed arrays) and
+deletes the batches at or below the previous checkpoint's version. The
+invariants: for every model, the checkpoint with the batches above its version
+applied in order gives every token's word and context, and ``context_word_count``
+equals their counts grouped by (context, word).
 """
 
 from __future__ import annotations
@@ -186,35 +187,41 @@ class Scene(Base):
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
 
 
-class Token(Base):
-    """One word occurrence and its current context assignment z.
+class TokenBatch(Base):
+    """The tokens one write added and the tokens it reassigned, packed in one row (alembic 0007).
 
-    ``id`` is the token's index in the model's corpus (scenes in order, words in
-    scene order): the index Incremental-LDA uses, so a resampled token is
-    updated by primary key.
+    A learned scene's new tokens are ``first_token`` .. ``first_token + token_count - 1``
+    (the indices Incremental-LDA uses: scenes in order, words in scene order), all of scene
+    ``scene_id``; ``packed`` holds their word ids and contexts, and the ids and new contexts of
+    the earlier tokens the write's sweeps reassigned (a reassigned token keeps its scene and
+    word, so they are not stored again). A model's corpus is its checkpoint's arrays with the
+    batches above the checkpoint's version applied in version order (docs/scaling.md, "Token
+    batches"). Keyed by (model, version): a catch-up reads a primary-key range, no other index.
     """
 
-    __tablename__ = "token"
-    __table_args__ = (
-        Index("ix_token_model_id_version", "model_id", "version"),
-        {"sqlite_with_rowid": False},  # clustered on its key: no second copy of it (alembic 0005)
-    )
+    __tablename__ = "token_batch"
+    __table_args__ = ({"sqlite_with_rowid": False},)  # clustered on its key: no second copy of it
 
     model_id: Mapped[str] = mapped_column(_model_fk(), primary_key=True)
-    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=False)
-    scene_id: Mapped[int] = mapped_column(Integer)
-    word_id: Mapped[int] = mapped_column(Integer)
-    context: Mapped[int] = mapped_column(Integer)
-    version: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
-    """The model version of the write that last inserted or reassigned the token."""
+    version: Mapped[int] = mapped_column(BigInteger, primary_key=True, autoincrement=False)
+    """The model version of the write."""
+    scene_id: Mapped[int | None] = mapped_column(Integer)
+    """The scene whose tokens the batch adds (None: a write that only reassigns)."""
+    first_token: Mapped[int] = mapped_column(Integer)
+    token_count: Mapped[int] = mapped_column(Integer)
+    packed: Mapped[bytes] = mapped_column(LargeBinary)
+    """``words``, ``contexts`` (new tokens), ``moved``, ``moved_contexts`` (reassigned ones), packed
+    (storage/compression.py :func:`pack_token_batch`)."""
 
 
 class IncrementalLdaCheckpoint(Base):
     """The latest checkpoint of a model's corpus: every token's word and context at one version.
 
     Written inside the transaction of every ``checkpoint_interval``-th scene, so that a start
-    loads it and only the rows written since (``token.version`` > its version), not the whole
-    token table (docs/scaling.md, "Checkpoints"). Derived: ``contextweb models repair`` rebuilds it.
+    loads it and only the batches written since (``token_batch.version`` > its version), not the
+    whole history (docs/scaling.md, "Checkpoints"). Once batches below it are deleted (alembic 0007)
+    it is part of the model's truth; while every batch since version 0 is kept, ``contextweb models
+    repair`` can rebuild it from them.
     """
 
     __tablename__ = "incremental_lda_checkpoint"
@@ -228,6 +235,9 @@ class IncrementalLdaCheckpoint(Base):
     word_count: Mapped[int] = mapped_column(Integer)
     arrays: Mapped[bytes] = mapped_column(LargeBinary)
     """``words``, ``contexts`` (per token) and ``scene_lengths``, packed (storage/compression.py)."""
+    compacted_version: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
+    """Every ``token_batch`` of the model at or below this version was deleted (folded into
+    checkpoints, alembic 0007); a process behind it cannot catch up from the batches and reloads."""
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
 
 

@@ -1,6 +1,7 @@
 """Checkpoints of the Incremental-LDA corpus (docs/scaling.md, "Checkpoints"): a start reads the latest
-checkpoint and the rows written since, and continues bit for bit like an uninterrupted run; a
-checkpoint that disagrees with the token rows is named by ``models check`` and rebuilt by ``repair``."""
+checkpoint and the token batches written since, and continues bit for bit like an uninterrupted run; a
+checkpoint that disagrees with the batches (all kept: none compacted yet) is named by ``models check``
+and rebuilt by ``repair``."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from sqlalchemy import Engine, text
 from app.main import create_app
 from app.state import AppState
 from core.context.incremental import ContextModelState
-from storage.compression import pack_arrays, unpack_arrays
+from storage.compression import pack_arrays, pack_small_arrays, unpack_arrays, unpack_small_arrays
 from storage.database import create_database_engine, create_session_makers
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories.consistency import check_model, repair_model
@@ -78,9 +79,10 @@ def test_a_checkpointed_model_restarts_from_checkpoint_and_tail_bit_for_bit(data
     try:
         start = _start(engine, restarted)
         assert start.checkpoint is not None and start.checkpoint.scene_count == 21
-        tail_scenes = set(start.tail[:, 1].tolist())
-        assert {21, 22, 23} <= tail_scenes, "the 3 scenes after the checkpoint are its tail"
-        assert min(tail_scenes) < 21, "tokens of checkpointed scenes reassigned since are in the tail"
+        tail_scenes = set(start.tail.added[:, 0].tolist())
+        assert tail_scenes == {21, 22, 23}, "the 3 scenes after the checkpoint are its tail"
+        assert start.tail.moved.size, "tokens of checkpointed scenes reassigned since are in the tail"
+        assert start.tail.moved[:, 0].max() < start.checkpoint.token_count
     finally:
         engine.dispose()
 
@@ -97,7 +99,7 @@ def _corrupt_checkpoint(engine: Engine, model_id: str) -> tuple[int, int]:
     start = _start(engine, model_id)
     checkpoint = start.checkpoint
     assert checkpoint is not None
-    moved_since = set(start.tail[:, 0].tolist())
+    moved_since = set(start.tail.moved[:, 0].tolist())
     token = next(i for i in range(checkpoint.token_count) if i not in moved_since)
     contexts = checkpoint.contexts.copy()
     contexts[token] = (contexts[token] + 1) % checkpoint.context_count
@@ -171,3 +173,86 @@ def test_packed_arrays_round_trip_in_the_narrowest_type_and_damage_is_refused() 
     for damaged in (blob[: len(blob) // 2], b"junk", bytes(len(blob))):
         with pytest.raises(ValueError):
             unpack_arrays(damaged)
+
+
+def test_a_server_behind_the_compacted_batches_reloads_and_one_within_an_interval_catches_up(
+    database_url: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Two servers on one database: while the first learns 2 intervals' worth of scenes, the batches
+    the second needs are deleted by the checkpoints (compaction); on its next request the second
+    reloads from the checkpoint instead of catching up, then catches up incrementally from there,
+    and its memory equals the writer's bit for bit."""
+    settings = make_settings(database_url, checkpoint_interval=INTERVAL)
+    scenes = concept_scenes(3 * INTERVAL + 2, seed=5)
+    with TestClient(create_app(settings)) as writer, TestClient(create_app(settings)) as follower:
+        model_id = _create(writer)
+        _post(writer, model_id, scenes[:2])
+        assert follower.get(f"/v1/models/{model_id}/contexts").status_code == 200  # follows at version 2 scenes
+        _post(writer, model_id, scenes[2 : 2 * INTERVAL + 1])  # checkpoints after scenes 7 and 14: 7 compacted
+        engine = create_database_engine(database_url)
+        read, _ = create_session_makers(engine)
+        with read() as session:
+            compacted = lda_repository.compacted_version(session, model_id)
+        engine.dispose()
+        assert compacted > 0
+        with caplog.at_level("INFO", logger="contextweb"):
+            assert follower.get(f"/v1/models/{model_id}/contexts").status_code == 200
+        assert any("folded into its checkpoint" in record.getMessage() for record in caplog.records)
+        _same_state(_memory(follower, model_id), _memory(writer, model_id))
+        caplog.clear()
+        _post(writer, model_id, scenes[2 * INTERVAL + 1 :])  # crosses the checkpoint after scene 21
+        with caplog.at_level("INFO", logger="contextweb"):
+            assert follower.get(f"/v1/models/{model_id}/contexts").status_code == 200
+        assert not any("folded into its checkpoint" in record.getMessage() for record in caplog.records)
+        _same_state(_memory(follower, model_id), _memory(writer, model_id))
+
+
+def test_small_packed_arrays_round_trip_narrow_and_short_and_damage_is_refused() -> None:
+    arrays = [np.zeros(0, dtype=np.int64), np.array([0, 3, 255]), np.array([0, 256, 70_000]), np.arange(200) % 3]
+    blob = pack_small_arrays(arrays)
+    unpacked = unpack_small_arrays(blob)
+    assert [array.dtype for array in unpacked] == [np.uint8, np.uint8, np.uint32, np.uint8]
+    assert all(np.array_equal(a, b) for a, b in zip(arrays, unpacked, strict=True))
+    assert len(blob) < 1 + 1 + 4 * 5 + 3 + 12 + 200, "the repetitive array is deflated"
+    assert unpack_small_arrays(pack_small_arrays([np.array([7, 9])]))[0].tolist() == [7, 9]  # stored plain
+    for damaged in (blob[: len(blob) // 2], b"junk", bytes(len(blob)), b"", blob + b"\x00"):
+        with pytest.raises(ValueError):
+            unpack_small_arrays(damaged)
+    with pytest.raises(ValueError):
+        pack_small_arrays([np.array([-1, 2])])
+
+
+def _batch(
+    version: int, first: int, words: list[int], moved: dict[int, int], scene: int | None = None
+) -> lda_repository.StoredBatch:
+    """One batch as stored and read back: its new tokens (context 0) and moved tokens."""
+    contexts = [0] * len(words)
+    return lda_repository.unpack_batch(
+        version,
+        scene if scene is not None else (version if words else None),
+        first,
+        len(words),
+        lda_repository.pack_batch(
+            np.array(words, dtype=np.int64),
+            np.array(contexts),
+            np.array(sorted(moved)),
+            np.array([moved[i] for i in sorted(moved)]),
+        ),
+    )
+
+
+def test_replaying_batches_keeps_the_last_context_of_each_token_and_refuses_gaps() -> None:
+    batches = [_batch(3, 10, [4, 5], {2: 1}), _batch(4, 12, [6], {2: 2, 11: 1}), _batch(5, 0, [], {0: 1, 12: 2})]
+    replayed = lda_repository.replay_batches(batches, 10)
+    assert replayed.moved.tolist() == [[0, 1], [2, 2]]  # token 2: moved twice, the last context kept
+    assert replayed.added.tolist() == [[3, 4, 0], [3, 5, 1], [4, 6, 2]]  # tokens 11 and 12 added, then moved
+    with pytest.raises(lda_repository.DamagedBatchError, match="starts at token 12, but 11 tokens come before it"):
+        lda_repository.replay_batches([_batch(3, 12, [4], {})], 11)
+    with pytest.raises(lda_repository.DamagedBatchError, match="reassigns token 11, but only 11 tokens exist"):
+        lda_repository.replay_batches([_batch(3, 11, [4], {11: 1})], 11)
+    with pytest.raises(lda_repository.DamagedBatchError, match="cannot be read"):
+        lda_repository.unpack_batch(3, 3, 0, 1, b"junk")
+    with pytest.raises(lda_repository.DamagedBatchError, match="its row says 2 tokens"):
+        lda_repository.unpack_batch(
+            3, 3, 0, 2, lda_repository.pack_batch(np.array([1]), np.array([0]), np.zeros(0), np.zeros(0))
+        )

@@ -96,10 +96,11 @@ def test_upgrading_converts_old_answers_byte_for_byte_and_downgrading_restores_t
                     ),
                     dict(zip(("id", "scene", "word", "context", "version"), token, strict=True)),
                 )
-        _migrate(engine, "head")
+        _migrate(engine, "0006")  # 0007 replaces the token table (tests/test_migration_0007.py)
         assert _tokens(engine) == TOKENS
         if engine.dialect.name == "sqlite":
             assert "WITHOUT ROWID" in _token_table_sql(engine)
+        _migrate(engine, "head")  # the repository reads the latest scene table (alembic 0008)
         read, _ = create_session_makers(engine)
         with read() as session:
             scenes = [scene_repository.get_scene(session, "m", i) for i in range(len(ANSWERS))]
@@ -114,7 +115,8 @@ def test_upgrading_converts_old_answers_byte_for_byte_and_downgrading_restores_t
         with engine.connect() as connection:
             rows = connection.execute(text("SELECT answer FROM scene ORDER BY id")).scalars().all()
         assert rows == ANSWERS
-        assert _tokens(engine) == TOKENS
+        # Back through 0007, whose checkpoint keeps assignments but not each row's write version.
+        assert [token[:4] for token in _tokens(engine)] == [token[:4] for token in TOKENS]
         if engine.dialect.name == "sqlite":
             assert "WITHOUT ROWID" not in _token_table_sql(engine)
     finally:

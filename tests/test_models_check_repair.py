@@ -12,6 +12,7 @@ from sqlalchemy import Engine, text, update
 from app.cli import main
 from storage.database import create_session_makers
 from storage.models import IncrementalLdaState
+from storage.repositories import incremental_lda as lda_repository
 from storage.repositories.consistency import UnrepairableModelError, check_model, find_problems, repair_model
 from storage.unit_of_work import unit_of_work
 from tests.conftest import concept_scenes
@@ -61,15 +62,52 @@ def _first_count(engine: Engine, model_id: str) -> Any:
     )
 
 
+def _tokens(engine: Engine, model_id: str) -> lda_repository.StoredAssignments:
+    read, _ = create_session_makers(engine)
+    with read() as session:
+        return lda_repository.load_assignments(session, model_id)
+
+
+def _batch_versions(engine: Engine, model_id: str) -> list[int]:
+    with engine.connect() as connection:
+        rows = connection.execute(
+            text("SELECT version FROM token_batch WHERE model_id = :m ORDER BY version"), {"m": model_id}
+        )
+        return [int(version) for (version,) in rows]
+
+
+def _damage_batch(
+    engine: Engine, model_id: str, version: int, *, scene_id: int | None = None, word: int | None = None
+) -> None:
+    """Rewrite one stored batch: its scene id, or the word of its first token (packed as the code packs it)."""
+    read, _ = create_session_makers(engine)
+    with read() as session:
+        (batch,) = [
+            b for b in lda_repository.load_batches(session, model_id, since_version=version - 1) if b.version == version
+        ]
+    words = batch.words.astype("int64")
+    if word is not None:
+        words[0] = word
+    _execute(
+        engine,
+        "UPDATE token_batch SET scene_id = :s, packed = :p WHERE model_id = :m AND version = :v",
+        s=batch.scene_id if scene_id is None else scene_id,
+        p=lda_repository.pack_batch(words, batch.contexts, batch.moved, batch.moved_contexts),
+        m=model_id,
+        v=version,
+    )
+
+
 def test_a_sound_model_checks_clean(engine: Engine, model_id: str, learned_model: str) -> None:
     assert _check(engine, learned_model) == []
-    scene_count, token_count = _one(
+    scene_count, batches, token_count = _one(
         engine,
         "SELECT (SELECT scene_count FROM incremental_lda_state WHERE model_id = :m), "
-        "(SELECT count(*) FROM token WHERE model_id = :m)",
+        "(SELECT count(*) FROM token_batch WHERE model_id = :m), "
+        "(SELECT sum(token_count) FROM token_batch WHERE model_id = :m)",
         m=learned_model,
     )
-    assert scene_count == 12 and token_count > 12
+    assert scene_count == 12 and batches == 12 and token_count == _tokens(engine, learned_model).words.shape[0] > 12
 
 
 def test_a_model_without_scenes_checks_clean_and_an_unknown_one_does_not(engine: Engine, model_id: str) -> None:
@@ -121,12 +159,8 @@ def test_repair_rebuilds_missing_counts_and_the_scalar_state(engine: Engine, lea
         "UPDATE incremental_lda_state SET scene_count = 9, context_count = 0 WHERE model_id = :m",
         m=learned_model,
     )
-    tokens = _one(
-        engine,
-        "SELECT count(*) AS total, max(context) AS largest, "
-        "(SELECT context FROM token WHERE model_id = :m AND id = 0) AS first FROM token WHERE model_id = :m",
-        m=learned_model,
-    )
+    stored = _tokens(engine, learned_model)
+    total, largest, first = stored.words.shape[0], int(stored.contexts.max()), int(stored.contexts[0])
     count_rows, word_count = _one(
         engine,
         "SELECT (SELECT count(*) FROM context_word_count WHERE model_id = :m), "
@@ -146,8 +180,8 @@ def test_repair_rebuilds_missing_counts_and_the_scalar_state(engine: Engine, lea
         "incremental_lda_state.scene_count is 9 but 12 scene rows are stored",
         "incremental_lda_state.context_count is 0, not at least 1",
         (
-            f"{tokens.total} tokens have a context at or above incremental_lda_state.context_count 0, "
-            f"first token 0 (context {tokens.first})"
+            f"{total} tokens have a context at or above incremental_lda_state.context_count 0, "
+            f"first token 0 (context {first})"
         ),
         (
             f"{count_rows} context_word_count rows name a context or word that does not exist (0 contexts, "
@@ -156,7 +190,7 @@ def test_repair_rebuilds_missing_counts_and_the_scalar_state(engine: Engine, lea
     ]
     changes = _repair(engine, learned_model)
     assert "incremental_lda_state.scene_count: 9 -> 12" in changes
-    assert f"incremental_lda_state.context_count: 0 -> {tokens.largest + 1}" in changes
+    assert f"incremental_lda_state.context_count: 0 -> {largest + 1}" in changes
     assert _check(engine, learned_model) == []
 
 
@@ -169,12 +203,8 @@ def test_repair_keeps_unbacked_entries_as_zeros_and_deletes_impossible_ones(engi
         "WHERE model_id = :m",
         m=learned_model,
     )
-    unused_word = _one(
-        engine,
-        "SELECT min(id) FROM word WHERE model_id = :m AND id NOT IN "
-        "(SELECT word_id FROM token WHERE model_id = :m AND context = 0)",
-        m=learned_model,
-    )[0]
+    stored = _tokens(engine, learned_model)
+    unused_word = min(set(range(word_count)) - set(stored.words[stored.contexts == 0].tolist()))
     _execute(
         engine,
         "DELETE FROM context_word_count WHERE model_id = :m AND context = 0 AND word_id = :w",
@@ -221,59 +251,63 @@ def test_repair_keeps_unbacked_entries_as_zeros_and_deletes_impossible_ones(engi
     assert _check(engine, learned_model) == []
 
 
-def test_rows_ahead_of_the_models_version_are_named_and_restamped(engine: Engine, learned_model: str) -> None:
+def test_rows_ahead_of_the_models_version_are_named_and_the_version_bumped_above(
+    engine: Engine, learned_model: str
+) -> None:
     version = _version(engine, learned_model)
     _execute(
-        engine, "UPDATE token SET version = :v WHERE model_id = :m AND id IN (3, 4)", m=learned_model, v=version + 7
+        engine,
+        "UPDATE token_batch SET version = :v WHERE model_id = :m AND version = :last",
+        m=learned_model,
+        v=version + 7,
+        last=_batch_versions(engine, learned_model)[-1],
     )
     assert _check(engine, learned_model) == [
         (
-            f"2 token rows written at a version above the model's (incremental_lda_state.version {version}), "
+            f"1 token_batch row written at a version above the model's (incremental_lda_state.version {version}), "
             f"first at version {version + 7}"
         )
     ]
-    assert _repair(engine, learned_model)[-2:] == [
-        f"token: 2 rows carried a version above {version}, set to {version + 1}",
-        f"incremental_lda_state.version: {version} -> {version + 1}",
-    ]
+    assert _repair(engine, learned_model)[-1] == f"incremental_lda_state.version: {version} -> {version + 8}"
     assert _check(engine, learned_model) == []
 
 
 def test_a_token_gap_is_reported_and_not_repaired(engine: Engine, learned_model: str) -> None:
-    token_count = _one(engine, "SELECT count(*) FROM token WHERE model_id = :m", m=learned_model)[0]
-    removed = _one(engine, "SELECT id, context, word_id FROM token WHERE model_id = :m AND id = 5", m=learned_model)
-    _execute(engine, "DELETE FROM token WHERE model_id = :m AND id = 5", m=learned_model)
-    stored = _one(
+    versions = _batch_versions(engine, learned_model)
+    first_token = _one(
         engine,
-        "SELECT count FROM context_word_count WHERE model_id = :m AND context = :k AND word_id = :w",
+        "SELECT first_token FROM token_batch WHERE model_id = :m AND version = :v",
         m=learned_model,
-        k=removed.context,
-        w=removed.word_id,
+        v=versions[6],
     )[0]
+    _execute(engine, "DELETE FROM token_batch WHERE model_id = :m AND version = :v", m=learned_model, v=versions[5])
+    entry = _first_count(engine, learned_model)
     problems = _check(engine, learned_model)
-    assert f"token ids have gaps: {token_count - 1} tokens stored, ids 0..{token_count - 1}" in problems
-    assert any(problem.startswith("context_word_count differs") for problem in problems)
+    gap = next(problem for problem in problems if problem.startswith("token ids have a gap"))
+    assert gap == (
+        f"token ids have a gap: token_batch at version {versions[6]} starts at token {first_token}, "
+        f"but {_tokens_before(engine, learned_model, versions[4])} tokens come before it"
+    )
     version = _version(engine, learned_model)
     with pytest.raises(UnrepairableModelError) as raised:
         _repair(engine, learned_model)
-    assert raised.value.problems == [f"token ids have gaps: {token_count - 1} tokens stored, ids 0..{token_count - 1}"]
+    assert gap in raised.value.problems
     assert _version(engine, learned_model) == version  # nothing written, not even the counts
-    assert (
-        _one(
-            engine,
-            "SELECT count FROM context_word_count WHERE model_id = :m AND context = :k AND word_id = :w",
-            m=learned_model,
-            k=removed.context,
-            w=removed.word_id,
-        )[0]
-        == stored
-    )
+    assert _first_count(engine, learned_model) == entry
     assert _check(engine, learned_model) == problems
 
 
+def _tokens_before(engine: Engine, model_id: str, version: int) -> int:
+    """How many tokens the batches up to ``version`` hold."""
+    return _one(
+        engine, "SELECT sum(token_count) FROM token_batch WHERE model_id = :m AND version <= :v", m=model_id, v=version
+    )[0]
+
+
 def test_broken_scenes_and_random_state_are_unrepairable(engine: Engine, learned_model: str) -> None:
-    _execute(engine, "UPDATE token SET scene_id = 0 WHERE model_id = :m AND scene_id = 11", m=learned_model)
-    _execute(engine, "UPDATE token SET word_id = 999 WHERE model_id = :m AND id = 0", m=learned_model)
+    versions = _batch_versions(engine, learned_model)
+    _damage_batch(engine, learned_model, versions[-1], scene_id=0)
+    _damage_batch(engine, learned_model, versions[0], word=999)
     _, write = create_session_makers(engine)
     with unit_of_work(write) as session:
         session.execute(
@@ -289,7 +323,7 @@ def test_broken_scenes_and_random_state_are_unrepairable(engine: Engine, learned
     assert unrepairable[0] == f"1 token has a word id outside the {word_count} stored words, first token 0 (word 999)"
     assert unrepairable[1].startswith("token scene ids decrease at 1 token, first token ")
     assert unrepairable[1].endswith("(scene 0 after scene 10)")
-    assert unrepairable[2] == "1 scene without token rows, first scene 11"
+    assert unrepairable[2] == "1 scene without tokens, first scene 11"
     assert unrepairable[3].startswith("incremental_lda_state.state: rng_state is not a PCG64 generator state")
     assert len(unrepairable) == 4
     repairable = [problem.message for problem in problems if problem.repairable]
@@ -374,13 +408,19 @@ def test_models_repair_prints_the_changes_and_the_check_after(
 def test_models_repair_refuses_an_unrepairable_model(
     cli_database: str, engine: Engine, learned_model: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    token_count = _one(engine, "SELECT count(*) FROM token WHERE model_id = :m", m=learned_model)[0]
-    _execute(engine, "DELETE FROM token WHERE model_id = :m AND id = :last", m=learned_model, last=token_count - 1)
-    _execute(engine, "DELETE FROM token WHERE model_id = :m AND id = 0", m=learned_model)
+    first = _batch_versions(engine, learned_model)[0]
+    second_starts = _one(
+        engine, "SELECT token_count FROM token_batch WHERE model_id = :m AND version = :v", m=learned_model, v=first
+    )[0]
+    _execute(engine, "DELETE FROM token_batch WHERE model_id = :m AND version = :v", m=learned_model, v=first)
     version = _version(engine, learned_model)
     assert main(["models", "repair", learned_model]) == 1
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith(f"{learned_model} test: not repaired, nothing changed")
-    assert f"  token ids do not start at 0: {token_count - 2} tokens stored, ids 1..{token_count - 2}" in lines
+    assert any(
+        line.startswith("  token ids have a gap: token_batch at version ")
+        and line.endswith(f"starts at token {second_starts}, but 0 tokens come before it")
+        for line in lines
+    ), lines
     assert _version(engine, learned_model) == version
     assert main(["models", "check", learned_model]) == 1

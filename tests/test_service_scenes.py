@@ -131,7 +131,7 @@ def test_stored_counts_match_the_stored_assignments_and_memory(
     read, _ = create_session_makers(engine)
     with read() as session:
         assert lda_repository.stored_counts(session, model_id) == lda_repository.assignment_counts(session, model_id)
-        stored = lda_repository.load_corpus(session, model_id)
+        stored = lda_repository.load_start(session, model_id)
     assert stored.word_kinds[stored.word_names.index("spoon")] == "noun"
     contexts = client.get(f"/v1/models/{model_id}/contexts", params={"top": 40}).json()
     spoon = [c for context in contexts["contexts"] for c in context["top_concepts"] if c["name"] == "spoon"]

@@ -64,9 +64,10 @@ def _learn_and_store(engine: Engine, lda: IncrementalLDA, words: list[str]) -> i
             SceneChanges(
                 scene_id=update.scene_index,
                 first_token=first_token,
-                token_words=update.word_ids.tolist(),
-                token_contexts=update.assignments.tolist(),
-                reassigned=lda_repository.reassigned_rows(update),
+                token_words=update.word_ids,
+                token_contexts=update.assignments,
+                moved_tokens=update.reassigned_tokens,
+                moved_contexts=update.reassigned_contexts,
                 counts=[tuple(row) for row in update.changed_counts.tolist()],
                 new_words=[(first_word + i, name, None) for i, name in enumerate(update.vocabulary_additions)],
                 context_count=update.contexts_after,
@@ -84,18 +85,93 @@ def test_scene_by_scene_writes_reload_to_the_same_corpus(engine: Engine) -> None
     assert sum(reassigned) > 0  # earlier tokens were moved and rewritten, not only new ones inserted
     read, _ = create_session_makers(engine)
     with read() as session:
-        stored = lda_repository.load_corpus(session, "m")
+        stored = lda_repository.load_assignments(session, "m")
+        start = lda_repository.load_start(session, "m")
         assert lda_repository.stored_counts(session, "m") == lda_repository.assignment_counts(session, "m")
+        batches = session.execute(text("SELECT count(*) FROM token_batch WHERE model_id = 'm'")).scalar_one()
+    assert batches == len(SCENES), "one token_batch row per learned scene"
     state = lda.to_state()
-    assert stored.word_names == state.vocabulary
-    assert np.array_equal(stored.token_words, state.words)
-    assert np.array_equal(stored.token_contexts, state.assignments)
-    assert np.array_equal(stored.doc_offsets, state.doc_offsets)
-    assert stored.context_count == state.n_contexts and stored.scene_count == len(SCENES)
-    assert stored.state["rng_state"] == state.rng_state
+    assert start.word_names == state.vocabulary and start.checkpoint is None
+    assert np.array_equal(stored.words, state.words)
+    assert np.array_equal(stored.contexts, state.assignments)
+    assert np.array_equal(np.searchsorted(stored.scenes, np.arange(len(SCENES) + 1)), state.doc_offsets)
+    assert start.context_count == state.n_contexts and start.scene_count == len(SCENES)
+    assert start.state["rng_state"] == state.rng_state
     n_kw = np.zeros_like(state.n_kw)
-    n_kw[stored.count_entries[:, 0], stored.count_entries[:, 1]] = stored.count_entries[:, 2]
+    n_kw[start.count_entries[:, 0], start.count_entries[:, 1]] = start.count_entries[:, 2]
     assert np.array_equal(n_kw, state.n_kw)
+
+
+def _checkpoint_now(engine: Engine, lda: IncrementalLDA, version: int) -> None:
+    """What every checkpoint_interval-th scene does: the corpus as a checkpoint, older batches compacted."""
+    state = lda.lda_state
+    _, write = create_session_makers(engine)
+    with unit_of_work(write) as session:
+        lda_repository.save_checkpoint(
+            session,
+            "m",
+            lda_repository.StoredCheckpoint(
+                version=version,
+                context_count=state.n_contexts,
+                word_count=state.vocab_size,
+                words=state.words,
+                contexts=state.assignments,
+                doc_offsets=state.doc_offsets,
+            ),
+            compact=True,
+        )
+
+
+def test_checkpoints_compact_the_batches_and_a_process_too_far_behind_is_told_to_reload(engine: Engine) -> None:
+    """A checkpoint deletes the batches at or below the previous checkpoint's version: a process up to one
+    interval behind catches up from the batches kept, one further behind gets BehindCompactionError."""
+    lda = IncrementalLDA(seed=5, **FAST)
+    _store_model(engine, lda)
+    behind = IncrementalLDA(seed=5, **FAST)  # a second process that stopped following after scene 2
+    for words in SCENES[:2]:
+        behind.learn_scene(words)
+    one_interval_behind = IncrementalLDA(seed=5, **FAST)  # stopped after scene 6
+    for words in SCENES[:6]:
+        one_interval_behind.learn_scene(words)
+    for version, words in enumerate(SCENES, start=1):
+        _learn_and_store(engine, lda, words)
+        if version in (4, 8):
+            _checkpoint_now(engine, lda, version)
+    read, _ = create_session_makers(engine)
+    with read() as session:
+        kept = session.execute(text("SELECT min(version), count(*) FROM token_batch WHERE model_id = 'm'")).one()
+        assert tuple(kept) == (5, len(SCENES) - 4), "the batches at or below the first checkpoint (4) are deleted"
+        assert lda_repository.compacted_version(session, "m") == 4
+        with pytest.raises(lda_repository.BehindCompactionError):
+            lda_repository.load_changes(
+                session, "m", since_version=2, word_count=len(behind.vocabulary), token_count=behind.lda_state.n_tokens
+            )
+        changes = lda_repository.load_changes(
+            session,
+            "m",
+            since_version=6,
+            word_count=len(one_interval_behind.vocabulary),
+            token_count=one_interval_behind.lda_state.n_tokens,
+        )
+        start = lda_repository.load_start(session, "m")
+        with pytest.raises(lda_repository.DamagedBatchError, match="starts at token"):
+            lda_repository.load_changes(session, "m", since_version=6, word_count=0, token_count=0)
+    assert changes is not None
+    one_interval_behind.catch_up(
+        new_words=[name for name, _ in changes.new_words],
+        n_contexts=changes.context_count,
+        moved=changes.tokens.moved,
+        added=changes.tokens.added,
+        count_entries=changes.count_entries,
+        scene_count=changes.scene_count,
+        rng_state=changes.state["rng_state"],
+    )
+    expected, caught_up = lda.to_state(), one_interval_behind.to_state()
+    for name in ("words", "assignments", "doc_offsets", "n_kw"):
+        assert np.array_equal(getattr(caught_up, name), getattr(expected, name)), name
+    assert caught_up.rng_state == expected.rng_state
+    assert start.checkpoint is not None and start.checkpoint.version == 8
+    assert start.tail.added.shape[0] == expected.words.shape[0] - start.checkpoint.token_count
 
 
 def test_an_idempotency_key_is_unique_per_model(engine: Engine) -> None:
@@ -122,27 +198,29 @@ def _plan_nodes(node: dict) -> list[dict]:
 
 
 @pytest.mark.postgres
-def test_rewriting_moved_tokens_never_scans_the_models_tokens(
+def test_catching_up_reads_a_range_of_the_batches_primary_key(
     postgres_url: str, request: pytest.FixtureRequest
 ) -> None:
-    """With statistics older than the corpus (a fresh table, never analysed), the statement that
-    rewrites a scene's moved tokens probes the primary key row by row: an UPDATE ... FROM unnest
-    was planned as a hash join over every token of the model, a cost that grew with the corpus."""
+    """With statistics older than the corpus (a fresh table, never analysed), the catch-up's read of the
+    batches since a version is a range scan of the primary key: no scan of the model's other batches
+    (the design needs no second index, docs/scaling.md "Token batches"). The planner may sort the
+    range it read (a bitmap scan on an unanalysed table)."""
     url = migrated_database("postgresql", request, Path())
     engine = create_database_engine(url)
     try:
         _store_model(engine, IncrementalLDA(seed=5, **FAST))
         with engine.begin() as connection:
             connection.execute(
-                text("INSERT INTO token SELECT 'm', g, g / 20, g % 29, 0, 0 FROM generate_series(0, 39999) AS g")
+                text(
+                    "INSERT INTO token_batch SELECT 'm', g, g - 1, (g - 1) * 20, 20, '\\x01'::bytea "
+                    "FROM generate_series(1, 40000) AS g"
+                )
             )
-            moved = list(range(30_000, 39_000, 150))
             plan = connection.exec_driver_sql(
-                "EXPLAIN (FORMAT JSON) " + lda_repository._UPSERT_TOKENS.replace("?", "%s"),
-                ("m", 1, moved, [t // 20 for t in moved], [t % 29 for t in moved], [1] * len(moved)),
+                "EXPLAIN (FORMAT JSON) " + lda_repository._SELECT_BATCHES_SINCE.replace("?", "%s"), ("m", 39_000)
             ).scalar_one()
     finally:
         engine.dispose()
     nodes = _plan_nodes(plan[0]["Plan"])
-    assert nodes[0]["Node Type"] == "ModifyTable" and nodes[0]["Conflict Resolution"] == "UPDATE"
-    assert [node["Node Type"] for node in nodes[1:] if node.get("Relation Name") == "token"] == []
+    assert {node["Node Type"] for node in nodes} <= {"Sort", "Index Scan", "Bitmap Heap Scan", "Bitmap Index Scan"}
+    assert [node.get("Index Name") for node in nodes if "Index" in node["Node Type"]] == ["pk_token_batch"]

@@ -29,11 +29,12 @@ def test_upgrading_twice_is_a_no_op_and_names_follow_the_convention(engine: Engi
         "incremental_lda_state",
         "word",
         "scene",
-        "token",
+        "token_batch",
         "context_word_count",
         "training_object",
     } <= tables
-    assert inspector.get_pk_constraint("token")["name"] == "pk_token"
+    assert "token" not in tables  # alembic 0007: one token_batch row per write
+    assert inspector.get_pk_constraint("token_batch")["name"] == "pk_token_batch"
     foreign_keys = {fk["name"] for fk in inspector.get_foreign_keys("scene")}
     assert foreign_keys == {"fk_scene_model_id_model"}
     unique = {index["name"] for index in inspector.get_indexes("scene") if index["unique"]}

@@ -1,7 +1,7 @@
 """Compact scene rows: the request's digest as 32 bytes, kept and indexed only for keyed scenes.
 
 Revision ID: 0008
-Revises: 0006
+Revises: 0007
 Create Date: 2026-12-02
 
 ``scene.request_hash`` was the 64-character hex SHA-256 of the request body on every scene;
@@ -27,7 +27,7 @@ import sqlalchemy as sa
 from alembic import op
 
 revision: str = "0008"
-down_revision: str | None = "0006"
+down_revision: str | None = "0007"
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 

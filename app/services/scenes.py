@@ -50,7 +50,7 @@ from storage.database import pipelined
 from storage.repositories import contexts as context_repository
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import scenes as scene_repository
-from storage.repositories.incremental_lda import SceneChanges, StoredCheckpoint, reassigned_rows
+from storage.repositories.incremental_lda import SceneChanges, StoredCheckpoint
 from storage.unit_of_work import after_commit
 
 
@@ -275,9 +275,10 @@ def _save_rows(
         SceneChanges(
             scene_id=update.scene_index,
             first_token=first_token,
-            token_words=update.word_ids.tolist(),
-            token_contexts=update.assignments.tolist(),
-            reassigned=reassigned_rows(update),
+            token_words=update.word_ids,
+            token_contexts=update.assignments,
+            moved_tokens=update.reassigned_tokens,
+            moved_contexts=update.reassigned_contexts,
             counts=[tuple(row) for row in update.changed_counts.tolist()],
             new_words=[
                 (first_word + i, name, model.word_kinds[first_word + i])
@@ -289,7 +290,7 @@ def _save_rows(
         ),
     )
     if (update.scene_index + 1) % model.checkpoint_interval == 0:
-        lda_repository.save_checkpoint(session, model.id, _checkpoint(model, version))
+        lda_repository.save_checkpoint(session, model.id, _checkpoint(model, version), compact=True)
     scene_repository.add_scene(
         session,
         model.id,

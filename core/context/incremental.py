@@ -49,10 +49,6 @@ class SceneUpdate:
     """Earlier tokens whose context changed (rejuvenation, growth), as global token indices (int64)."""
     reassigned_contexts: np.ndarray
     """Their new contexts (int32)."""
-    reassigned_scenes: np.ndarray
-    """Their scenes (int32): with ``reassigned_words``, a store can write each moved token's whole row."""
-    reassigned_words: np.ndarray
-    """Their concept ids (int32)."""
     changed_counts: np.ndarray
     """One row (context, concept, new n_kw) per count entry that changed (int64, m × 3)."""
     contexts_before: int
@@ -222,8 +218,6 @@ class IncrementalLDA:
             assignments=assignments,
             reassigned_tokens=reassigned,
             reassigned_contexts=contexts,
-            reassigned_scenes=state.scene_of(reassigned),
-            reassigned_words=state.words[reassigned],
             changed_counts=changed_counts,
             contexts_before=contexts_before,
             contexts_after=state.n_contexts,
@@ -367,44 +361,45 @@ class IncrementalLDA:
         *,
         new_words: Sequence[str],
         n_contexts: int,
-        tokens: np.ndarray,
+        moved: np.ndarray,
+        added: np.ndarray,
         count_entries: np.ndarray,
         scene_count: int,
         rng_state: dict[str, Any],
     ) -> None:
         """Bring the model to a later stored state from what changed since it (docs/scaling.md).
 
-        ``tokens`` holds (id, scene, concept, context) rows of every token inserted or reassigned
-        since: earlier tokens move to their new context, new ones form whole new scenes;
-        ``count_entries`` the (context, concept, count) n_kw entries that changed, checked
+        ``moved`` holds (id, context) rows of earlier tokens and their new contexts; ``added``
+        (scene, concept, context) rows of the new tokens, which continue the corpus as whole new
+        scenes; ``count_entries`` the (context, concept, count) n_kw entries that changed, checked
         against the counts the tokens give. Raises InvalidInputError (nothing proven, the caller
         must reload) when the changes do not fit this model.
         """
         state = self._state
         if n_contexts < state.n_contexts or n_contexts > self.hyperparameters.k_rule.max_contexts:
             raise InvalidInputError("state.n_contexts", f"{n_contexts} does not follow {state.n_contexts}")
-        tokens = np.asarray(tokens, dtype=np.int64).reshape(-1, 4)
+        moved = np.asarray(moved, dtype=np.int64).reshape(-1, 2)
+        added = np.asarray(added, dtype=np.int64).reshape(-1, 3)
         self._add_concepts(list(new_words))
-        if tokens.size and (tokens[:, 2].max() >= state.vocab_size or tokens[:, 3].max() >= n_contexts):
+        if (added.size and (added[:, 1].max() >= state.vocab_size or added[:, 2].max() >= n_contexts)) or (
+            moved.size and moved[:, 1].max() >= n_contexts
+        ):
             raise InvalidInputError("state.tokens", "a changed token names an unknown concept or context")
         while state.n_contexts < n_contexts:
             state.add_context()
-        earlier = tokens[tokens[:, 0] < state.n_tokens]
-        if earlier.size:
-            if not np.array_equal(state.words[earlier[:, 0]], earlier[:, 2]):
-                raise InvalidInputError("state.tokens", "a reassigned token has another concept than in memory")
-            state.reassign(earlier[:, 0], earlier[:, 3].astype(np.int32))
-        added = tokens[tokens[:, 0] >= state.n_tokens]
+        if moved.size:
+            if moved[:, 0].min() < 0 or moved[:, 0].max() >= state.n_tokens:
+                raise InvalidInputError("state.tokens", "a reassigned token is not in memory")
+            state.reassign(moved[:, 0], moved[:, 1].astype(np.int32))
         if added.size:
-            expected_ids = np.arange(state.n_tokens, state.n_tokens + added.shape[0])
-            scenes, lengths = np.unique(added[:, 1], return_counts=True)
+            scenes, lengths = np.unique(added[:, 0], return_counts=True)
             expected_scenes = np.arange(state.n_documents, state.n_documents + scenes.shape[0])
-            if not np.array_equal(added[:, 0], expected_ids) or not np.array_equal(scenes, expected_scenes):
+            if not np.array_equal(scenes, expected_scenes):
                 raise InvalidInputError("state.tokens", "the new tokens do not form whole scenes after the last one")
-            if np.any(np.diff(added[:, 1]) < 0):
+            if np.any(np.diff(added[:, 0]) < 0):
                 raise InvalidInputError("state.tokens", "the new tokens' scenes are out of order")
             state.append_assigned_scenes(
-                added[:, 2].astype(np.int32), added[:, 3].astype(np.int32), lengths.astype(np.int32)
+                added[:, 1].astype(np.int32), added[:, 2].astype(np.int32), lengths.astype(np.int32)
             )
         if state.n_documents != scene_count:
             raise InvalidInputError("state.scene_count", f"{scene_count} stored, {state.n_documents} after catching up")

@@ -1,21 +1,24 @@
 """Check a model's stored Incremental-LDA state against its invariants, and rebuild what is derived.
 
-The truth of a model is its ``scene`` rows, its ``token`` rows (word and context
+The truth of a model is its ``scene`` rows, its tokens (word and context
 assignment of every word occurrence), its ``word`` rows and the random state in
-``incremental_lda_state.state``. What is derived from them can be rebuilt:
-``context_word_count`` (n_kw, the token counts grouped by context and word),
-``incremental_lda_state.scene_count`` and ``context_count``, and the model's
-checkpoint (``incremental_lda_checkpoint``: every token's word and context at
-one version, which must equal the token rows not written since that version).
-:func:`check_model`
-names every broken invariant; :func:`repair_model` rebuilds the derived rows
-and bumps the model's version, so that serving processes reload it. A problem in
-the truth itself (a gap in the token ids, a scene without tokens, a missing
-state row, a bad random state …) cannot be repaired from the rows: then
+``incremental_lda_state.state``. The tokens are stored as the model's checkpoint
+(``incremental_lda_checkpoint``) with the ``token_batch`` rows above its version
+applied in order; while no batch was deleted by a checkpoint
+(``compacted_version`` 0) the batches alone hold every token, and the checkpoint
+is derived from them (it must equal their replay up to its version). What is
+derived can be rebuilt: ``context_word_count`` (n_kw, the token counts grouped
+by context and word), ``incremental_lda_state.scene_count`` and
+``context_count``, and, while every batch is kept, the checkpoint.
+:func:`check_model` names every broken invariant; :func:`repair_model` rebuilds
+the derived rows and bumps the model's version, so that serving processes
+reload it. A problem in the truth itself (a gap in the token ids, a scene
+without tokens, a missing state row, a bad random state, a damaged checkpoint
+whose batches were deleted …) cannot be repaired from the rows: then
 :func:`repair_model` changes nothing and raises :class:`UnrepairableModelError`.
 
-The checks are aggregate queries, except the checkpoint's: its arrays are
-compared with the token rows' numbers, read once through the driver.
+The tokens are read once (checkpoint and batches) and checked as arrays; the
+other checks are aggregate queries.
 """
 
 from __future__ import annotations
@@ -25,37 +28,29 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sqlalchemy import (
-    ColumnElement,
-    CursorResult,
-    Integer,
-    Result,
-    Row,
-    delete,
-    func,
-    literal_column,
-    select,
-    text,
-    union_all,
-    update,
-)
+from sqlalchemy import ColumnElement, CursorResult, Result, Row, delete, func, select, text, update
 from sqlalchemy.orm import Session
 
-from storage.database import DriverStatements
 from storage.models import (
     ContextWordCount,
     IncrementalLdaCheckpoint,
     IncrementalLdaState,
     Model,
     Scene,
-    Token,
+    TokenBatch,
     Word,
     utc_now,
 )
 from storage.repositories.incremental_lda import (
+    DamagedBatchError,
     DamagedCheckpointError,
+    StoredAssignments,
     StoredCheckpoint,
+    compacted_version,
+    load_assignments,
+    load_batches,
     load_checkpoint,
+    replay_batches,
     save_checkpoint,
 )
 
@@ -100,38 +95,38 @@ def find_problems(session: Session, model_id: str) -> list[Problem]:
     state = _state_row(session, model_id)
     words = _id_range(session, Word.id, Word.model_id, model_id)
     scenes = _id_range(session, Scene.id, Scene.model_id, model_id)
-    tokens = _id_range(session, Token.id, Token.model_id, model_id)
+    tokens, problems = _read_tokens(session, model_id)
     problems = [
         *_dense_id_problems("word", "words", words),
         *_dense_id_problems("scene", "scenes", scenes),
-        *_dense_id_problems("token", "tokens", tokens),
-        *_token_problems(session, model_id, words.count),
-        *_scene_problems(session, model_id),
-        *_count_problems(session, model_id),
+        *problems,
     ]
+    if tokens is not None:
+        problems += _token_problems(session, model_id, tokens, words.count)
+        problems += _count_problems(session, model_id, tokens)
     if state is None:
         problems.append(Problem("incremental_lda_state has no row for the model", repairable=False))
     else:
         k_rule = model.hyperparameters.get("k_rule") if isinstance(model.hyperparameters, dict) else None
         max_contexts = k_rule.get("max_contexts") if isinstance(k_rule, dict) else None
-        problems += _state_problems(session, model_id, state, scenes.count, words.count, max_contexts)
-        problems += _checkpoint_problems(session, model_id, state.version)
+        problems += _state_problems(session, model_id, state, scenes.count, words.count, max_contexts, tokens)
     return problems
 
 
 def repair_model(session: Session, model_id: str) -> list[str]:
-    """Rebuild the model's derived rows from its scenes and token assignments, in the caller's transaction.
+    """Rebuild the model's derived rows from its scenes and tokens, in the caller's transaction.
 
     Sets ``scene_count`` to the number of scene rows and ``context_count`` to at
     least the largest token context + 1, rewrites ``context_word_count`` from the
-    token rows (a GROUP BY; entries no token backs any more stay as 0, rows naming
-    a context or word that does not exist are deleted) and bumps the model's
-    version by one: every count row carries the new version, so a process that
-    catches up on the rows written since its version reads all of n_kw again.
-    Returns what changed, one sentence each; an empty list when the model was
-    sound (then nothing is written). Raises :class:`LookupError` for an unknown
-    model and :class:`UnrepairableModelError`, before writing anything, when the
-    truth itself is damaged.
+    tokens (entries no token backs any more stay as 0, rows naming a context or
+    word that does not exist are deleted), rebuilds the checkpoint from the tokens
+    (when the model has one) and bumps the model's version above every stored row's:
+    every count row carries the new version, so a process that catches up on the
+    rows written since its version reads all of n_kw again. Returns what changed,
+    one sentence each; an empty list when the model was sound (then nothing is
+    written). Raises :class:`LookupError` for an unknown model and
+    :class:`UnrepairableModelError`, before writing anything, when the truth itself
+    is damaged.
     """
     if session.execute(select(Model.id).where(Model.id == model_id)).first() is None:
         raise LookupError(f"model {model_id!r} is not stored")
@@ -143,20 +138,16 @@ def repair_model(session: Session, model_id: str) -> list[str]:
     if not problems:
         return []
     assert state is not None  # a missing state row is unrepairable
+    tokens, _ = _read_tokens(session, model_id)
+    assert tokens is not None  # unreadable tokens are unrepairable
     changes = []
-    new_version = state.version + 1
+    largest_batch = session.scalar(select(func.max(TokenBatch.version)).where(TokenBatch.model_id == model_id))
+    new_version = max(state.version, largest_batch or 0) + 1
     scene_count = _id_range(session, Scene.id, Scene.model_id, model_id).count
-    largest_context = session.scalar(select(func.max(Token.context)).where(Token.model_id == model_id))
-    context_count = max(state.context_count, 1 if largest_context is None else largest_context + 1, 1)
+    largest_context = int(tokens.contexts.max()) if tokens.contexts.size else 0
+    context_count = max(state.context_count, largest_context + 1, 1)
     word_count = _id_range(session, Word.id, Word.model_id, model_id).count
-    changes += _rewrite_counts(session, model_id, new_version, context_count, word_count)
-    moved_tokens = _rowcount(
-        session.execute(
-            update(Token).where(Token.model_id == model_id, Token.version > state.version).values(version=new_version)
-        )
-    )
-    if moved_tokens:
-        changes.append(f"token: {moved_tokens} rows carried a version above {state.version}, set to {new_version}")
+    changes += _rewrite_counts(session, model_id, tokens, new_version, context_count, word_count)
     session.execute(
         update(IncrementalLdaState)
         .where(IncrementalLdaState.model_id == model_id)
@@ -168,9 +159,9 @@ def repair_model(session: Session, model_id: str) -> list[str]:
         changes.append(f"incremental_lda_state.context_count: {state.context_count} -> {context_count}")
     if _has_checkpoint(session, model_id):
         save_checkpoint(
-            session, model_id, _checkpoint_of_tokens(session, model_id, new_version, context_count, word_count)
+            session, model_id, _checkpoint_of_tokens(tokens, new_version, scene_count, context_count, word_count)
         )
-        changes.append(f"incremental_lda_checkpoint: rebuilt from the token rows at version {new_version}")
+        changes.append(f"incremental_lda_checkpoint: rebuilt from the tokens at version {new_version}")
     changes.append(f"incremental_lda_state.version: {state.version} -> {new_version}")
     return changes
 
@@ -195,7 +186,13 @@ def _state_row(session: Session, model_id: str, *, lock: bool = False) -> AnyRow
 
 
 def _state_problems(
-    session: Session, model_id: str, state: AnyRow, scene_count: int, word_count: int, max_contexts: Any
+    session: Session,
+    model_id: str,
+    state: AnyRow,
+    scene_count: int,
+    word_count: int,
+    max_contexts: Any,
+    tokens: StoredAssignments | None,
 ) -> list[Problem]:
     problems = []
     rng_problem = _rng_state_problem(state.state)
@@ -220,9 +217,11 @@ def _state_problems(
                 repairable=False,
             )
         )
-    problems += _context_range_problems(session, model_id, state.context_count, max_contexts)
+    if tokens is not None:
+        problems += _context_range_problems(tokens, state.context_count, max_contexts)
     problems += _count_range_problems(session, model_id, state.context_count, word_count)
     problems += _version_problems(session, model_id, state.version)
+    problems += _checkpoint_problems(session, model_id, state.version)
     return problems
 
 
@@ -236,16 +235,47 @@ def _rng_state_problem(state: Any) -> str | None:
     return None
 
 
-# The checkpoint.
+# The tokens: the checkpoint and the batches.
+
+
+def _read_tokens(session: Session, model_id: str) -> tuple[StoredAssignments | None, list[Problem]]:
+    """The model's tokens (None when they cannot be read) and the problems of reading them.
+
+    While no batch was compacted the batches alone are the truth (the checkpoint is derived
+    from them and checked against them by :func:`_checkpoint_problems`); afterwards the truth
+    is the checkpoint with the batches above its version."""
+    try:
+        if compacted_version(session, model_id) == 0:
+            return _tokens_of_batches(session, model_id), []
+        return load_assignments(session, model_id), []
+    except DamagedCheckpointError as error:
+        return None, [
+            Problem(
+                f"{error}; the token batches up to version {compacted_version(session, model_id)} were folded "
+                "into it, so the tokens cannot be rebuilt",
+                repairable=False,
+            )
+        ]
+    except DamagedBatchError as error:
+        return None, [Problem(str(error), repairable=False)]
+
+
+def _tokens_of_batches(session: Session, model_id: str, *, up_to: int | None = None) -> StoredAssignments:
+    """Every token from the model's batches alone (all of them, or those at or below ``up_to``)."""
+    batches = load_batches(session, model_id, since_version=0)
+    if up_to is not None:
+        batches = [batch for batch in batches if batch.version <= up_to]
+    added = replay_batches(batches, 0).added
+    return StoredAssignments(words=added[:, 1], contexts=added[:, 2], scenes=added[:, 0])
 
 
 def _checkpoint_problems(session: Session, model_id: str, version: int) -> list[Problem]:
-    """The checkpoint against the token rows: every token it covers has its word, and its context
-    unless the token row was written after the checkpoint's version (then it moved since)."""
+    """While every batch is kept, the checkpoint must equal their replay up to its version."""
+    compacted = compacted_version(session, model_id)
     try:
         checkpoint = load_checkpoint(session, model_id)
     except DamagedCheckpointError as error:
-        return [Problem(str(error), repairable=True)]
+        return [Problem(str(error), repairable=True)] if compacted == 0 else []  # else named by _read_tokens
     if checkpoint is None:
         return []
     if checkpoint.version > version:
@@ -253,52 +283,42 @@ def _checkpoint_problems(session: Session, model_id: str, version: int) -> list[
             Problem(
                 f"incremental_lda_checkpoint is at version {checkpoint.version}, above the model's "
                 f"(incremental_lda_state.version {version})",
-                repairable=True,
+                repairable=compacted == 0,
             )
         ]
-    rows = _token_columns(session, model_id, checkpoint.token_count)
-    if rows.shape[0] != checkpoint.token_count or not np.array_equal(rows[:, 0], np.arange(rows.shape[0])):
+    if compacted != 0:
+        return []
+    try:
+        truth = _tokens_of_batches(session, model_id, up_to=checkpoint.version)
+    except DamagedBatchError:
+        return []  # named by _read_tokens
+    if truth.words.shape[0] != checkpoint.token_count:
         return [
             Problem(
-                f"incremental_lda_checkpoint covers {checkpoint.token_count} tokens, but token ids "
-                f"0..{checkpoint.token_count - 1} are not all stored",
+                f"incremental_lda_checkpoint (version {checkpoint.version}) covers {checkpoint.token_count} tokens, "
+                f"but the token batches up to its version add {truth.words.shape[0]}",
                 repairable=True,
             )
         ]
     scenes = np.repeat(np.arange(checkpoint.scene_count), np.diff(checkpoint.doc_offsets))
     problems = []
-    for what, differs, stored, saved in (
-        ("scene", rows[:, 1] != scenes, rows[:, 1], scenes),
-        ("word", rows[:, 2] != checkpoint.words, rows[:, 2], checkpoint.words),
-        (
-            "context",
-            (rows[:, 3] != checkpoint.contexts) & (rows[:, 4] <= checkpoint.version),
-            rows[:, 3],
-            checkpoint.contexts,
-        ),
+    for what, stored, saved in (
+        ("scene", truth.scenes, scenes),
+        ("word", truth.words, checkpoint.words),
+        ("context", truth.contexts, checkpoint.contexts),
     ):
+        differs = stored != saved
         if differs.any():
             first = int(np.flatnonzero(differs)[0])
             problems.append(
                 Problem(
-                    f"incremental_lda_checkpoint (version {checkpoint.version}) differs from the token rows in the "
-                    f"{what} of {_count(int(differs.sum()), 'token')}, first token {first} "
-                    f"(checkpoint {int(saved[first])}, token row {int(stored[first])})",
+                    f"incremental_lda_checkpoint (version {checkpoint.version}) differs from the token batches in "
+                    f"the {what} of {_count(int(differs.sum()), 'token')}, first token {first} "
+                    f"(checkpoint {int(saved[first])}, token batches {int(stored[first])})",
                     repairable=True,
                 )
             )
     return problems
-
-
-def _token_columns(session: Session, model_id: str, count: int) -> np.ndarray:
-    """(id, scene, word, context, version) of the model's tokens with id < ``count``, by id (int64)."""
-    rows = DriverStatements(session).fetchall(_SELECT_TOKEN_COLUMNS, (model_id, count))
-    return np.array(rows, dtype=np.int64).reshape(-1, 5)
-
-
-_SELECT_TOKEN_COLUMNS = (
-    "SELECT id, scene_id, word_id, context, version FROM token WHERE model_id = ? AND id < ? ORDER BY id"
-)
 
 
 def _has_checkpoint(session: Session, model_id: str) -> bool:
@@ -311,18 +331,16 @@ def _has_checkpoint(session: Session, model_id: str) -> bool:
 
 
 def _checkpoint_of_tokens(
-    session: Session, model_id: str, version: int, context_count: int, word_count: int
+    tokens: StoredAssignments, version: int, scene_count: int, context_count: int, word_count: int
 ) -> StoredCheckpoint:
-    """The checkpoint of the model's token rows as they stand (the truth), at ``version``."""
-    rows = _token_columns(session, model_id, np.iinfo(np.int32).max)
-    scene_count = _id_range(session, Scene.id, Scene.model_id, model_id).count
-    lengths = np.bincount(rows[:, 1], minlength=scene_count)
+    """The checkpoint of the model's tokens as they stand (the truth), at ``version``."""
+    lengths = np.bincount(tokens.scenes, minlength=scene_count)
     return StoredCheckpoint(
         version=version,
         context_count=context_count,
         word_count=word_count,
-        words=rows[:, 2].astype(np.int32),
-        contexts=rows[:, 3].astype(np.int32),
+        words=tokens.words.astype(np.int32),
+        contexts=tokens.contexts.astype(np.int32),
         doc_offsets=np.concatenate([[0], np.cumsum(lengths)]).astype(np.int32),
     )
 
@@ -353,9 +371,6 @@ def _dense_id_problems(table: str, plural: str, ids: _IdRange) -> list[Problem]:
     return [Problem(f"{table} ids have gaps: {stored}", repairable=False)]
 
 
-# Tokens and scenes.
-
-
 def _first_and_total(
     session: Session, columns: Sequence[Any], *conditions: Any, order_by: Sequence[Any]
 ) -> AnyRow | None:
@@ -364,103 +379,70 @@ def _first_and_total(
     return session.execute(statement).first()
 
 
-def _token_problems(session: Session, model_id: str, word_count: int) -> list[Problem]:
+# Tokens and scenes.
+
+
+def _first_of(flags: np.ndarray) -> tuple[int, int] | None:
+    """(first index, how many) of the set flags, None when none is set."""
+    where = np.flatnonzero(flags)
+    return None if where.size == 0 else (int(where[0]), int(where.size))
+
+
+def _token_problems(session: Session, model_id: str, tokens: StoredAssignments, word_count: int) -> list[Problem]:
     problems = []
-    mine = Token.model_id == model_id
-    columns = (Token.id, Token.scene_id, Token.word_id, Token.context)
-    unknown_word = (Token.word_id < 0) | (Token.word_id >= word_count)
-    bad_word = _first_and_total(session, columns, mine, unknown_word, order_by=(Token.id,))
+    bad_word = _first_of(tokens.words >= word_count)
     if bad_word:
+        first, total = bad_word
         problems.append(
             Problem(
-                f"{_tokens(bad_word.total)} a word id outside the {word_count} stored words, "
-                f"first token {bad_word.id} (word {bad_word.word_id})",
+                f"{_tokens(total)} a word id outside the {word_count} stored words, "
+                f"first token {first} (word {int(tokens.words[first])})",
                 repairable=False,
             )
         )
-    negative = _first_and_total(session, columns, mine, Token.context < 0, order_by=(Token.id,))
-    if negative:
-        problems.append(
-            Problem(
-                f"{_tokens(negative.total)} a negative context, first token {negative.id} (context {negative.context})",
-                repairable=False,
-            )
-        )
-    orphan = _orphan_token(session, model_id)
+    scene_ids = np.array(session.execute(select(Scene.id).where(Scene.model_id == model_id)).scalars().all())
+    orphan = _first_of(~np.isin(tokens.scenes, scene_ids))
     if orphan:
+        first, total = orphan
         problems.append(
             Problem(
-                f"{_tokens(orphan.total)} a scene id with no scene row, "
-                f"first token {orphan.id} (scene {orphan.scene_id})",
+                f"{_tokens(total)} a scene id with no scene row, first token {first} "
+                f"(scene {int(tokens.scenes[first])})",
                 repairable=False,
             )
         )
-    ordered = (
-        select(Token.id, Token.scene_id, func.lag(Token.scene_id).over(order_by=(Token.id,)).label("previous_scene"))
-        .where(mine)
-        .subquery()
-    )
-    backwards = _first_and_total(
-        session,
-        (ordered.c.id, ordered.c.scene_id, ordered.c.previous_scene),
-        ordered.c.previous_scene > ordered.c.scene_id,
-        order_by=(ordered.c.id,),
-    )
+    backwards = _first_of(np.diff(tokens.scenes) < 0)
     if backwards:
+        first, total = backwards
         problems.append(
             Problem(
-                f"token scene ids decrease at {_count(backwards.total, 'token')}, first token {backwards.id} "
-                f"(scene {backwards.scene_id} after scene {backwards.previous_scene})",
+                f"token scene ids decrease at {_count(total, 'token')}, first token {first + 1} "
+                f"(scene {int(tokens.scenes[first + 1])} after scene {int(tokens.scenes[first])})",
                 repairable=False,
+            )
+        )
+    empty = np.setdiff1d(scene_ids, tokens.scenes)
+    if empty.size:
+        problems.append(
+            Problem(
+                f"{_count(int(empty.size), 'scene')} without tokens, first scene {int(empty.min())}", repairable=False
             )
         )
     return problems
 
 
-def _orphan_token(session: Session, model_id: str) -> AnyRow | None:
-    statement = (
-        select(Token.id, Token.scene_id, func.count().over().label("total"))
-        .outerjoin(Scene, (Scene.model_id == Token.model_id) & (Scene.id == Token.scene_id))
-        .where(Token.model_id == model_id, Scene.id.is_(None))
-        .order_by(Token.id)
-        .limit(1)
-    )
-    return session.execute(statement).first()
-
-
-def _scene_problems(session: Session, model_id: str) -> list[Problem]:
-    token_scenes = select(Token.scene_id).where(Token.model_id == model_id).distinct().subquery()
-    statement = (
-        select(Scene.id, func.count().over().label("total"))
-        .outerjoin(token_scenes, token_scenes.c.scene_id == Scene.id)
-        .where(Scene.model_id == model_id, token_scenes.c.scene_id.is_(None))
-        .order_by(Scene.id)
-        .limit(1)
-    )
-    empty = session.execute(statement).first()
-    if empty is None:
-        return []
-    return [Problem(f"{_count(empty.total, 'scene')} without token rows, first scene {empty.id}", repairable=False)]
-
-
-def _context_range_problems(session: Session, model_id: str, context_count: int, max_contexts: Any) -> list[Problem]:
-    beyond = _first_and_total(
-        session,
-        (Token.id, Token.context),
-        Token.model_id == model_id,
-        Token.context >= context_count,
-        order_by=(Token.id,),
-    )
+def _context_range_problems(tokens: StoredAssignments, context_count: int, max_contexts: Any) -> list[Problem]:
+    beyond = _first_of(tokens.contexts >= context_count)
     if beyond is None:
         return []
-    largest = session.scalar(select(func.max(Token.context)).where(Token.model_id == model_id))
-    assert largest is not None  # ``beyond`` is a token of the model
+    first, total = beyond
+    largest = int(tokens.contexts.max())
     fits = not isinstance(max_contexts, int) or largest < max_contexts
     limit = "" if fits else f"; the largest, {largest}, is beyond the model's max_contexts {max_contexts}"
     return [
         Problem(
-            f"{_tokens(beyond.total)} a context at or above incremental_lda_state.context_count {context_count}, "
-            f"first token {beyond.id} (context {beyond.context}){limit}",
+            f"{_tokens(total)} a context at or above incremental_lda_state.context_count {context_count}, "
+            f"first token {first} (context {int(tokens.contexts[first])}){limit}",
             repairable=fits,
         )
     ]
@@ -480,52 +462,44 @@ def _count(total: int, noun: str) -> str:
 # The n_kw entries.
 
 
-def _count_problems(session: Session, model_id: str) -> list[Problem]:
-    entry = _first_count_difference(session, model_id)
-    if entry is None:
-        return []
+def _token_counts(tokens: StoredAssignments) -> dict[tuple[int, int], int]:
+    """n_kw of the tokens: {(context, word): count} of the nonzero entries."""
+    if tokens.words.size == 0:
+        return {}
+    keys, counts = np.unique(np.stack([tokens.contexts, tokens.words], axis=1), axis=0, return_counts=True)
+    return {(int(k), int(w)): int(n) for (k, w), n in zip(keys, counts, strict=True)}
+
+
+def _count_differences(session: Session, model_id: str, tokens: StoredAssignments) -> list[tuple[int, int, int, int]]:
+    """(context, word, stored, tokens) of every entry whose stored count differs from the tokens', in order."""
+    stored = {
+        (int(k), int(w)): int(n)
+        for k, w, n in session.execute(
+            select(ContextWordCount.context, ContextWordCount.word_id, ContextWordCount.count).where(
+                ContextWordCount.model_id == model_id
+            )
+        ).all()
+    }
+    counted = _token_counts(tokens)
     return [
-        Problem(
-            f"context_word_count differs from the token assignments at {_count(entry.total, 'entry')}, "
-            f"first (context {entry.context}, word {entry.word_id}): stored {int(entry.stored)}, "
-            f"tokens {int(entry.assigned)}",
-            repairable=True,
-        )
+        (k, w, stored.get((k, w), 0), counted.get((k, w), 0))
+        for k, w in sorted(set(stored) | set(counted))
+        if stored.get((k, w), 0) != counted.get((k, w), 0)
     ]
 
 
-def _first_count_difference(session: Session, model_id: str) -> AnyRow | None:
-    """The first (context, word) whose stored count differs from its token count, with the number of such."""
-    stored = select(
-        ContextWordCount.context,
-        ContextWordCount.word_id,
-        ContextWordCount.count.label("stored"),
-        literal_column("0", Integer).label("assigned"),
-    ).where(ContextWordCount.model_id == model_id)
-    assigned = (
-        select(
-            Token.context, Token.word_id, literal_column("0", Integer).label("stored"), func.count().label("assigned")
+def _count_problems(session: Session, model_id: str, tokens: StoredAssignments) -> list[Problem]:
+    differences = _count_differences(session, model_id, tokens)
+    if not differences:
+        return []
+    context, word, stored, counted = differences[0]
+    return [
+        Problem(
+            f"context_word_count differs from the token assignments at {_count(len(differences), 'entry')}, "
+            f"first (context {context}, word {word}): stored {stored}, tokens {counted}",
+            repairable=True,
         )
-        .where(Token.model_id == model_id)
-        .group_by(Token.context, Token.word_id)
-    )
-    both = union_all(stored, assigned).subquery()
-    differences = (
-        select(
-            both.c.context,
-            both.c.word_id,
-            func.sum(both.c.stored).label("stored"),
-            func.sum(both.c.assigned).label("assigned"),
-        )
-        .group_by(both.c.context, both.c.word_id)
-        .having(func.sum(both.c.stored) != func.sum(both.c.assigned))
-        .subquery()
-    )
-    return session.execute(
-        select(differences, func.count().over().label("total"))
-        .order_by(differences.c.context, differences.c.word_id)
-        .limit(1)
-    ).first()
+    ]
 
 
 def _count_row_outside(context_count: int, word_count: int) -> ColumnElement[bool]:
@@ -561,7 +535,7 @@ def _count_range_problems(session: Session, model_id: str, context_count: int, w
 def _version_problems(session: Session, model_id: str, version: int) -> list[Problem]:
     problems = []
     for table, key, model_column, version_column in (
-        ("token", (Token.id,), Token.model_id, Token.version),
+        ("token_batch", (TokenBatch.version,), TokenBatch.model_id, TokenBatch.version),
         (
             "context_word_count",
             (ContextWordCount.context, ContextWordCount.word_id),
@@ -586,10 +560,12 @@ def _version_problems(session: Session, model_id: str, version: int) -> list[Pro
 # The repair.
 
 
-def _rewrite_counts(session: Session, model_id: str, version: int, context_count: int, word_count: int) -> list[str]:
+def _rewrite_counts(
+    session: Session, model_id: str, tokens: StoredAssignments, version: int, context_count: int, word_count: int
+) -> list[str]:
     """Set the model's n_kw entries to the token counts, every row stamped ``version``; what changed."""
     changes = []
-    difference = _first_count_difference(session, model_id)
+    differences = _count_differences(session, model_id, tokens)
     outside = _count_row_outside(context_count, word_count)
     deleted = _rowcount(session.execute(delete(ContextWordCount).where(ContextWordCount.model_id == model_id, outside)))
     if deleted:
@@ -600,23 +576,30 @@ def _rewrite_counts(session: Session, model_id: str, version: int, context_count
     session.execute(
         update(ContextWordCount).where(ContextWordCount.model_id == model_id).values(count=0, version=version)
     )
-    written = _rowcount(session.execute(_UPSERT_COUNTS_FROM_TOKENS, {"model_id": model_id, "version": version}))
-    rewritten = f"context_word_count: rewrote {_count(written, 'entry')} from the token rows"
-    if difference is not None:
+    counted = _token_counts(tokens)
+    if counted:
+        session.execute(
+            _UPSERT_COUNT,
+            [
+                {"model_id": model_id, "context": k, "word_id": w, "count": n, "version": version}
+                for (k, w), n in counted.items()
+            ],
+        )
+    rewritten = f"context_word_count: rewrote {_count(len(counted), 'entry')} from the tokens"
+    if differences:
+        context, word, stored, assigned = differences[0]
         changes.append(
-            f"{rewritten}; {_count(difference.total, 'entry')} differed, first (context {difference.context}, "
-            f"word {difference.word_id}): stored {int(difference.stored)}, tokens {int(difference.assigned)}"
+            f"{rewritten}; {_count(len(differences), 'entry')} differed, first (context {context}, "
+            f"word {word}): stored {stored}, tokens {assigned}"
         )
     else:
         changes.append(rewritten)
     return changes
 
 
-# Every (context, word) of the tokens with its count; entries without tokens were set to 0 before.
-# The same SQL on SQLite and PostgreSQL (SQLite needs the WHERE before ON CONFLICT, which it has).
-_UPSERT_COUNTS_FROM_TOKENS = text(
+# Entries without tokens were set to 0 before. The same SQL on SQLite and PostgreSQL.
+_UPSERT_COUNT = text(
     "INSERT INTO context_word_count (model_id, context, word_id, count, version) "
-    "SELECT model_id, context, word_id, count(*), :version FROM token WHERE model_id = :model_id "
-    "GROUP BY model_id, context, word_id "
+    "VALUES (:model_id, :context, :word_id, :count, :version) "
     "ON CONFLICT (model_id, context, word_id) DO UPDATE SET count = excluded.count, version = excluded.version"
 )

@@ -1,13 +1,16 @@
 """The Incremental-LDA state of a model, written scene by scene and read back on start.
 
-:func:`save_scene` writes everything one learned scene changed — its tokens,
-the tokens its sweeps reassigned, the n_kw entries that moved, new words and
-the scalar state — in the caller's transaction (the scene's own), straight
-through the driver (see the statements below). :func:`save_checkpoint` replaces
-the model's checkpoint (every token's word and context at one version, packed);
-:func:`load_start` reads what a start needs: the checkpoint and only the token
-rows written since it, so a start costs the same at any corpus size
-(docs/scaling.md, "Checkpoints").
+:func:`save_scene` writes everything one learned scene changed — one
+``token_batch`` row (its tokens and the tokens its sweeps reassigned, packed),
+the n_kw entries that moved, new words and the scalar state — in the caller's
+transaction (the scene's own), straight through the driver (see the statements
+below). :func:`save_checkpoint` replaces the model's checkpoint (every token's
+word and context at one version, packed) and deletes the batches at or below the
+previous checkpoint's version; :func:`load_start` reads what a start needs: the
+checkpoint and only the batches written since it, so a start costs the same at
+any corpus size; :func:`load_changes` what a process behind needs to catch up
+(docs/scaling.md, "Checkpoints" and "Token batches"). :func:`replay_batches`
+applies batches to a known token count, checking that they continue it.
 """
 
 from __future__ import annotations
@@ -17,28 +20,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sqlalchemy import delete, func, insert, select
+from sqlalchemy import insert, select
 from sqlalchemy.orm import Session
 
-from storage.compression import pack_arrays, unpack_arrays
+from storage.compression import pack_arrays, pack_small_arrays, unpack_arrays, unpack_small_arrays
 from storage.database import DriverStatements
-from storage.models import ContextWordCount, IncrementalLdaCheckpoint, IncrementalLdaState, Token, Word, utc_now
-
-
-@dataclass(frozen=True)
-class StoredCorpus:
-    """A model's LDA corpus as stored: words, token arrays, n_kw entries and the scalar state."""
-
-    word_names: list[str]
-    word_kinds: list[str | None]
-    token_words: np.ndarray
-    token_contexts: np.ndarray
-    doc_offsets: np.ndarray
-    count_entries: np.ndarray
-    scene_count: int
-    context_count: int
-    state: dict[str, Any]
-    version: int
+from storage.models import ContextWordCount, IncrementalLdaCheckpoint, IncrementalLdaState, Word, utc_now
 
 
 @dataclass(frozen=True)
@@ -51,8 +38,8 @@ class StoredChanges:
     state: dict[str, Any]
     new_words: list[tuple[str, str | None]]
     """Words with ids >= the caller's vocabulary size, in id order: (name, kind)."""
-    tokens: np.ndarray
-    """(id, scene, word, context) rows of the tokens inserted or reassigned since, by id (int64)."""
+    tokens: ReplayedTokens
+    """The tokens added since and the earlier ones reassigned since (their final contexts)."""
     count_entries: np.ndarray
     """(context, word, count) rows of the n_kw entries changed since (int64)."""
 
@@ -80,20 +67,16 @@ class StoredCheckpoint:
         return int(self.words.shape[0])
 
 
-class DamagedCheckpointError(ValueError):
-    """The stored checkpoint cannot be decoded, or its arrays contradict its own header."""
-
-
 @dataclass(frozen=True)
 class StoredStart:
-    """What a start loads: the words, the latest checkpoint and the rows written since it."""
+    """What a start loads: the words, the latest checkpoint and the token batches written since it."""
 
     word_names: list[str]
     word_kinds: list[str | None]
     checkpoint: StoredCheckpoint | None
     """None before the first checkpoint: then :attr:`tail` holds every token."""
-    tail: np.ndarray
-    """(id, scene, word, context) rows of the tokens written after the checkpoint, by id (int64)."""
+    tail: ReplayedTokens
+    """The batches written after the checkpoint, applied to its tokens (to none without one)."""
     count_entries: np.ndarray
     """Every stored n_kw entry, (context, word, count) rows (int64): the whole of n_kw is checked on load."""
     scene_count: int
@@ -108,30 +91,131 @@ class SceneChanges:
 
     scene_id: int
     first_token: int
-    token_words: Sequence[int]
-    token_contexts: Sequence[int]
-    reassigned: Sequence[tuple[int, int, int, int]]
-    """Earlier tokens whose context changed, as whole rows: (token, scene, word, new context)."""
+    token_words: np.ndarray
+    token_contexts: np.ndarray
+    moved_tokens: np.ndarray
+    """Earlier tokens whose context changed, ascending (int64)."""
+    moved_contexts: np.ndarray
+    """Their new contexts."""
     counts: Sequence[tuple[int, int, int]]
     new_words: Sequence[tuple[int, str, str | None]]
     context_count: int
     state: dict[str, Any]
     version: int
-    """The model's version after this write: stamped on every row the scene writes."""
+    """The model's version after this write: the batch's key and the version of every row it writes."""
 
 
-def reassigned_rows(update: Any) -> list[tuple[int, int, int, int]]:
-    """The ``SceneChanges.reassigned`` rows of an Incremental-LDA scene update (duck-typed:
-    storage does not import the core)."""
-    return list(
-        zip(
-            update.reassigned_tokens.tolist(),
-            update.reassigned_scenes.tolist(),
-            update.reassigned_words.tolist(),
-            update.reassigned_contexts.tolist(),
-            strict=True,
+@dataclass(frozen=True)
+class StoredBatch:
+    """One ``token_batch`` row, unpacked: the tokens a write added and the ones it reassigned."""
+
+    version: int
+    scene_id: int | None
+    first_token: int
+    words: np.ndarray
+    contexts: np.ndarray
+    moved: np.ndarray
+    """Ids of the earlier tokens the write reassigned, ascending (int64)."""
+    moved_contexts: np.ndarray
+
+
+@dataclass(frozen=True)
+class ReplayedTokens:
+    """Batches applied in version order to a corpus of ``known`` tokens (:func:`replay_batches`)."""
+
+    known: int
+    moved: np.ndarray
+    """(id, context) rows of tokens below ``known`` whose context the batches set, the last one (int64)."""
+    added: np.ndarray
+    """(scene, word, context) rows of the tokens ``known``, ``known`` + 1, ... the batches added (int64)."""
+
+    @classmethod
+    def none(cls, known: int) -> ReplayedTokens:
+        return cls(known, np.zeros((0, 2), dtype=np.int64), np.zeros((0, 3), dtype=np.int64))
+
+
+class DamagedCheckpointError(ValueError):
+    """The stored checkpoint cannot be decoded, or its arrays contradict its own header."""
+
+
+class DamagedBatchError(ValueError):
+    """A ``token_batch`` cannot be decoded, or the batches do not continue the tokens before them."""
+
+
+class BehindCompactionError(LookupError):
+    """The batches after a version were deleted by a checkpoint (compaction): reload the model instead."""
+
+
+def pack_batch(words: np.ndarray, contexts: np.ndarray, moved: np.ndarray, moved_contexts: np.ndarray) -> bytes:
+    """A batch's ``packed`` blob; the moved ids (ascending) are stored as differences, mostly small."""
+    return pack_small_arrays([words, contexts, np.diff(moved, prepend=0), moved_contexts])
+
+
+def unpack_batch(version: int, scene_id: int | None, first_token: int, token_count: int, blob: bytes) -> StoredBatch:
+    """The batch of one row; :class:`DamagedBatchError` when its blob cannot be read or disagrees with the row."""
+    try:
+        words, contexts, moved_steps, moved_contexts = unpack_small_arrays(blob)
+    except ValueError as error:
+        raise DamagedBatchError(f"token_batch at version {version} cannot be read: {error}") from error
+    if words.shape != contexts.shape or words.shape[0] != token_count or moved_steps.shape != moved_contexts.shape:
+        raise DamagedBatchError(
+            f"token_batch at version {version} holds {words.shape[0]} words, {contexts.shape[0]} contexts, "
+            f"{moved_steps.shape[0]} moved tokens and {moved_contexts.shape[0]} of their contexts; "
+            f"its row says {token_count} tokens"
         )
+    if token_count and scene_id is None:
+        raise DamagedBatchError(f"token_batch at version {version} adds {token_count} tokens without a scene")
+    return StoredBatch(
+        version=version,
+        scene_id=scene_id,
+        first_token=first_token,
+        words=words,
+        contexts=contexts,
+        moved=np.cumsum(moved_steps, dtype=np.int64),
+        moved_contexts=moved_contexts,
     )
+
+
+def replay_batches(batches: Sequence[StoredBatch], known: int) -> ReplayedTokens:
+    """The batches (in version order) applied to a corpus of ``known`` tokens.
+
+    Each batch's new tokens must continue the tokens before them (``first_token`` = the count so
+    far: no gap, no overlap) and its moved tokens must already exist; otherwise
+    :class:`DamagedBatchError` names the batch and the numbers. A token moved several times keeps
+    its last context; a token added and then moved, the context it was moved to.
+    """
+    count = known
+    added_scenes, added_words, added_contexts, moved_ids, moved_contexts = [], [], [], [], []
+    for batch in batches:
+        if batch.moved.size and batch.moved[-1] >= count:
+            raise DamagedBatchError(
+                f"token_batch at version {batch.version} reassigns token {int(batch.moved[-1])}, "
+                f"but only {count} tokens exist before it"
+            )
+        moved_ids.append(batch.moved)
+        moved_contexts.append(batch.moved_contexts)
+        if batch.words.size:
+            if batch.first_token != count:
+                raise DamagedBatchError(
+                    f"token ids have a gap: token_batch at version {batch.version} starts at token "
+                    f"{batch.first_token}, but {count} tokens come before it"
+                )
+            added_scenes.append(np.full(batch.words.shape[0], batch.scene_id, dtype=np.int64))
+            added_words.append(batch.words)
+            added_contexts.append(batch.contexts)
+            count += batch.words.shape[0]
+    added = np.zeros((count - known, 3), dtype=np.int64)
+    if added_words:
+        added[:, 0] = np.concatenate(added_scenes)
+        added[:, 1] = np.concatenate(added_words)
+        added[:, 2] = np.concatenate(added_contexts)
+    ids = np.concatenate(moved_ids) if moved_ids else np.zeros(0, dtype=np.int64)
+    contexts = np.concatenate(moved_contexts).astype(np.int64) if moved_contexts else np.zeros(0, dtype=np.int64)
+    last, where = np.unique(ids[::-1], return_index=True)  # the last write of each token wins
+    final = contexts[::-1][where]
+    inside = last >= known
+    added[last[inside] - known, 2] = final[inside]
+    return ReplayedTokens(known, np.stack([last[~inside], final[~inside]], axis=1).astype(np.int64), added)
 
 
 def create_state(
@@ -151,15 +235,17 @@ def save_scene(session: Session, model_id: str, changes: SceneChanges) -> None:
     """Persist one scene's changes; the scene row itself is written by the scenes repository."""
     _insert_words(session, model_id, changes.new_words)
     driver = DriverStatements(session)
+    version = changes.version
+    blob = pack_batch(changes.token_words, changes.token_contexts, changes.moved_tokens, changes.moved_contexts)
+    driver.execute(
+        _INSERT_BATCH,
+        (model_id, version, changes.scene_id, changes.first_token, len(changes.token_words), blob),
+    )
     if driver.dialect.name == "postgresql":
-        _save_rows_as_arrays(driver, model_id, changes)
+        if changes.counts:
+            contexts, words, counts = zip(*changes.counts, strict=True)
+            driver.execute(_UPSERT_COUNTS, (model_id, version, list(contexts), list(words), list(counts)))
     else:
-        first, scene, version = changes.first_token, changes.scene_id, changes.version
-        tokens = zip(changes.token_words, changes.token_contexts, strict=True)
-        driver.executemany(
-            _INSERT_TOKEN, [(model_id, first + i, scene, w, k, version) for i, (w, k) in enumerate(tokens)]
-        )
-        driver.executemany(_UPSERT_TOKEN, [(model_id, *row, version) for row in changes.reassigned])
         driver.executemany(_UPSERT_COUNT, [(model_id, k, w, n, version) for k, w, n in changes.counts])
     driver.execute(
         _UPDATE_STATE,
@@ -167,7 +253,7 @@ def save_scene(session: Session, model_id: str, changes: SceneChanges) -> None:
             changes.scene_id + 1,
             changes.context_count,
             driver.bind(_STATE_TABLE.c.state)(changes.state),
-            changes.version,
+            version,
             driver.bind(_STATE_TABLE.c.updated_at)(utc_now()),
             model_id,
         ),
@@ -176,60 +262,28 @@ def save_scene(session: Session, model_id: str, changes: SceneChanges) -> None:
 
 # The statements of every scene, in the SQL that SQLite and PostgreSQL share, sent
 # straight to the driver (storage.database.DriverStatements): built by SQLAlchemy
-# they cost more (parameter processing for ~100 rows a scene, per-statement set-up)
-# than the database takes to store them. ``?`` stands for the driver's placeholder;
-# JSON and time values get SQLAlchemy's own conversion for the column, and the
-# state row its ``updated_at`` (the ORM's ``onupdate``), so the rows read back as before.
-_INSERT_TOKEN = "INSERT INTO token (model_id, id, scene_id, word_id, context, version) VALUES (?, ?, ?, ?, ?, ?)"
-# A reassigned token is written as its whole row, upserted on its primary key: on PostgreSQL an
-# UPDATE ... FROM unnest(...) is planned from the table's statistics, and with statistics older
-# than the model's growth it hash-joined every token of the model (a cost growing with the
-# corpus: docs/benchmarks.md); the arbiter index of ON CONFLICT is probed row by row whatever the
-# statistics say. The row's other values are the stored ones (the in-memory state's).
-_UPSERT_TOKEN = (
-    "INSERT INTO token (model_id, id, scene_id, word_id, context, version) VALUES (?, ?, ?, ?, ?, ?) "
-    "ON CONFLICT (model_id, id) DO UPDATE SET context = excluded.context, version = excluded.version"
+# they cost more (parameter processing, per-statement set-up) than the database
+# takes to store them. ``?`` stands for the driver's placeholder; JSON and time
+# values get SQLAlchemy's own conversion for the column, and the state row its
+# ``updated_at`` (the ORM's ``onupdate``), so the rows read back as before.
+# A scene's tokens are one ``token_batch`` row (alembic 0007; before, ~80 ``token`` rows and
+# the upserts of the reassigned ones).
+_INSERT_BATCH = (
+    "INSERT INTO token_batch (model_id, version, scene_id, first_token, token_count, packed) VALUES (?, ?, ?, ?, ?, ?)"
 )
 _UPSERT_COUNT = (
     "INSERT INTO context_word_count (model_id, context, word_id, count, version) VALUES (?, ?, ?, ?, ?) "
     "ON CONFLICT (model_id, context, word_id) DO UPDATE SET count = excluded.count, version = excluded.version"
 )
-# PostgreSQL: one statement per table with the rows as arrays (``unnest``). psycopg's
-# executemany, even pipelined, costs Python time per row (docs/benchmarks.md), and a scene has ~100-250
-# rows (its tokens, the tokens its sweeps reassigned, the n_kw entries that moved).
-# Each array holds distinct keys, as ON CONFLICT ... DO UPDATE requires.
-_INSERT_TOKENS = (
-    "INSERT INTO token (model_id, id, scene_id, word_id, context, version) "
-    "SELECT ?, t.id, ?, t.word_id, t.context, ? FROM unnest(?::integer[], ?::integer[], ?::integer[]) "
-    "AS t(id, word_id, context)"
-)
-_UPSERT_TOKENS = (
-    "INSERT INTO token (model_id, id, scene_id, word_id, context, version) "
-    "SELECT ?, t.id, t.scene_id, t.word_id, t.context, ? "
-    "FROM unnest(?::integer[], ?::integer[], ?::integer[], ?::integer[]) AS t(id, scene_id, word_id, context) "
-    "ON CONFLICT (model_id, id) DO UPDATE SET context = excluded.context, version = excluded.version"
-)
+# PostgreSQL: the n_kw entries in one statement with the rows as arrays (``unnest``): psycopg's
+# executemany, even pipelined, costs Python time per row (docs/benchmarks.md). Each array holds
+# distinct keys, as ON CONFLICT ... DO UPDATE requires.
 _UPSERT_COUNTS = (
     "INSERT INTO context_word_count (model_id, context, word_id, count, version) "
     "SELECT ?, c.context, c.word_id, c.count, ? FROM unnest(?::integer[], ?::integer[], ?::integer[]) "
     "AS c(context, word_id, count) "
     "ON CONFLICT (model_id, context, word_id) DO UPDATE SET count = excluded.count, version = excluded.version"
 )
-
-
-def _save_rows_as_arrays(driver: DriverStatements, model_id: str, changes: SceneChanges) -> None:
-    first, scene, version = changes.first_token, changes.scene_id, changes.version
-    token_ids = list(range(first, first + len(changes.token_words)))
-    driver.execute(
-        _INSERT_TOKENS,
-        (model_id, scene, version, token_ids, list(changes.token_words), list(changes.token_contexts)),
-    )
-    if changes.reassigned:
-        tokens, scenes, words, contexts = zip(*changes.reassigned, strict=True)
-        driver.execute(_UPSERT_TOKENS, (model_id, version, list(tokens), list(scenes), list(words), list(contexts)))
-    if changes.counts:
-        contexts, words, counts = zip(*changes.counts, strict=True)
-        driver.execute(_UPSERT_COUNTS, (model_id, version, list(contexts), list(words), list(counts)))
 
 
 _STATE_TABLE = IncrementalLdaState.__table__
@@ -247,46 +301,35 @@ def _insert_words(session: Session, model_id: str, words: Sequence[tuple[int, st
         )
 
 
-def load_corpus(session: Session, model_id: str) -> StoredCorpus:
-    state = session.get(IncrementalLdaState, model_id)
-    if state is None:
-        raise LookupError(f"model {model_id!r} has no Incremental-LDA state")
-    words = session.execute(select(Word.name, Word.kind).where(Word.model_id == model_id).order_by(Word.id)).all()
-    driver = DriverStatements(session)
-    tokens = _int_rows(driver, _SELECT_TOKENS, (model_id,), 3)
-    counts = _int_rows(driver, _SELECT_COUNTS, (model_id,), 3)
-    scene_lengths = np.bincount(tokens[:, 0], minlength=state.scene_count)
-    return StoredCorpus(
-        word_names=[name for name, _ in words],
-        word_kinds=[kind for _, kind in words],
-        token_words=tokens[:, 1].astype(np.int32),
-        token_contexts=tokens[:, 2].astype(np.int32),
-        doc_offsets=np.concatenate([[0], np.cumsum(scene_lengths)]).astype(np.int32),
-        count_entries=counts,
-        scene_count=state.scene_count,
-        context_count=state.context_count,
-        state=dict(state.state),
-        version=state.version,
-    )
+def load_batches(session: Session, model_id: str, *, since_version: int) -> list[StoredBatch]:
+    """The model's batches above ``since_version``, in version order (a range of the primary key)."""
+    rows = DriverStatements(session).fetchall(_SELECT_BATCHES_SINCE, (model_id, since_version))
+    return [unpack_batch(int(v), s, int(first), int(n), bytes(blob)) for v, s, first, n, blob in rows]
+
+
+_SELECT_BATCHES_SINCE = (
+    "SELECT version, scene_id, first_token, token_count, packed FROM token_batch "
+    "WHERE model_id = ? AND version > ? ORDER BY version"
+)
 
 
 def load_start(session: Session, model_id: str) -> StoredStart:
-    """The model's latest checkpoint and the token rows written since it, with every word and n_kw
-    entry (read it in one snapshot). Raises LookupError for a model without state and
-    :class:`DamagedCheckpointError` for a checkpoint that cannot be read."""
+    """The model's latest checkpoint and the batches written since it, with every word and n_kw
+    entry (read it in one snapshot). Raises LookupError for a model without state,
+    :class:`DamagedCheckpointError` for a checkpoint that cannot be read and
+    :class:`DamagedBatchError` for batches that cannot be read or do not continue it."""
     state = session.get(IncrementalLdaState, model_id)
     if state is None:
         raise LookupError(f"model {model_id!r} has no Incremental-LDA state")
     words = session.execute(select(Word.name, Word.kind).where(Word.model_id == model_id).order_by(Word.id)).all()
     checkpoint = load_checkpoint(session, model_id)
-    driver = DriverStatements(session)
-    since = -1 if checkpoint is None else checkpoint.version  # rows from before migration 0002 carry version 0
+    since, known = (0, 0) if checkpoint is None else (checkpoint.version, checkpoint.token_count)
     return StoredStart(
         word_names=[name for name, _ in words],
         word_kinds=[kind for _, kind in words],
         checkpoint=checkpoint,
-        tail=_int_rows(driver, _SELECT_TOKENS_SINCE, (model_id, since), 4),
-        count_entries=_int_rows(driver, _SELECT_COUNTS, (model_id,), 3),
+        tail=replay_batches(load_batches(session, model_id, since_version=since), known),
+        count_entries=_int_rows(DriverStatements(session), _SELECT_COUNTS, (model_id,), 3),
         scene_count=state.scene_count,
         context_count=state.context_count,
         state=dict(state.state),
@@ -294,23 +337,90 @@ def load_start(session: Session, model_id: str) -> StoredStart:
     )
 
 
-def save_checkpoint(session: Session, model_id: str, checkpoint: StoredCheckpoint) -> None:
-    """Replace the model's checkpoint (in the caller's transaction: the scene's, or a repair's)."""
+@dataclass(frozen=True)
+class StoredAssignments:
+    """Every token of a model as its checkpoint and batches give them (the truth of its corpus)."""
+
+    words: np.ndarray
+    contexts: np.ndarray
+    scenes: np.ndarray
+    """The scene of every token (int64)."""
+
+
+def load_assignments(session: Session, model_id: str) -> StoredAssignments:
+    """Every token's word, context and scene: the checkpoint with the batches since applied (read it in
+    one snapshot). Raises :class:`DamagedCheckpointError` / :class:`DamagedBatchError` as :func:`load_start`."""
+    checkpoint = load_checkpoint(session, model_id)
+    if checkpoint is None:
+        base_words = base_contexts = base_scenes = np.zeros(0, dtype=np.int64)
+        since = 0
+    else:
+        base_words = checkpoint.words.astype(np.int64)
+        base_contexts = checkpoint.contexts.astype(np.int64)
+        base_scenes = np.repeat(np.arange(checkpoint.scene_count, dtype=np.int64), np.diff(checkpoint.doc_offsets))
+        since = checkpoint.version
+    tail = replay_batches(load_batches(session, model_id, since_version=since), base_words.shape[0])
+    contexts = base_contexts.copy()
+    contexts[tail.moved[:, 0]] = tail.moved[:, 1]
+    return StoredAssignments(
+        words=np.concatenate([base_words, tail.added[:, 1]]),
+        contexts=np.concatenate([contexts, tail.added[:, 2]]),
+        scenes=np.concatenate([base_scenes, tail.added[:, 0]]),
+    )
+
+
+def save_checkpoint(session: Session, model_id: str, checkpoint: StoredCheckpoint, *, compact: bool = False) -> None:
+    """Replace the model's checkpoint (in the caller's transaction: the scene's, or a repair's).
+
+    ``compact`` (a scheduled checkpoint) also deletes the model's batches at or below the replaced
+    checkpoint's version and records that version as ``compacted_version``: a process up to one
+    checkpoint interval behind still catches up from the batches kept, one further behind
+    reloads (:class:`BehindCompactionError`). Otherwise (a repair) no batch is deleted and the
+    mark is kept. Statements only, no read: the scene's statements are pipelined on PostgreSQL.
+    """
+    driver = DriverStatements(session)
+    if compact:
+        driver.execute(_DELETE_COMPACTED_BATCHES, (model_id, model_id))
     lengths = np.diff(checkpoint.doc_offsets)
     blob = pack_arrays({"words": checkpoint.words, "contexts": checkpoint.contexts, "scene_lengths": lengths})
-    session.execute(delete(IncrementalLdaCheckpoint).where(IncrementalLdaCheckpoint.model_id == model_id))
-    session.execute(
-        insert(IncrementalLdaCheckpoint).values(
-            model_id=model_id,
-            version=checkpoint.version,
-            scene_count=checkpoint.scene_count,
-            token_count=checkpoint.token_count,
-            context_count=checkpoint.context_count,
-            word_count=checkpoint.word_count,
-            arrays=blob,
-            created_at=utc_now(),
-        )
+    driver.execute(
+        _UPSERT_CHECKPOINT_COMPACTING if compact else _UPSERT_CHECKPOINT,
+        (
+            model_id,
+            checkpoint.version,
+            checkpoint.scene_count,
+            checkpoint.token_count,
+            checkpoint.context_count,
+            checkpoint.word_count,
+            blob,
+            driver.bind(_CHECKPOINT_TABLE.c.created_at)(utc_now()),
+        ),
     )
+
+
+_CHECKPOINT_TABLE = IncrementalLdaCheckpoint.__table__
+_DELETE_COMPACTED_BATCHES = (
+    "DELETE FROM token_batch WHERE model_id = ? "
+    "AND version <= (SELECT version FROM incremental_lda_checkpoint WHERE model_id = ?)"
+)
+# ``compacted_version = incremental_lda_checkpoint.version``: the replaced row's version (SET reads the
+# row as it was), the one the batches were just deleted up to.
+_UPSERT_CHECKPOINT = (
+    "INSERT INTO incremental_lda_checkpoint (model_id, version, scene_count, token_count, context_count, "
+    "word_count, arrays, compacted_version, created_at) VALUES (?, ?, ?, ?, ?, ?, ?, 0, ?) "
+    "ON CONFLICT (model_id) DO UPDATE SET version = excluded.version, scene_count = excluded.scene_count, "
+    "token_count = excluded.token_count, context_count = excluded.context_count, "
+    "word_count = excluded.word_count, arrays = excluded.arrays, created_at = excluded.created_at"
+)
+_UPSERT_CHECKPOINT_COMPACTING = _UPSERT_CHECKPOINT + ", compacted_version = incremental_lda_checkpoint.version"
+
+
+def compacted_version(session: Session, model_id: str) -> int:
+    """The version at or below which the model's batches were deleted (0: none was)."""
+    value = session.scalar(
+        select(IncrementalLdaCheckpoint.compacted_version).where(IncrementalLdaCheckpoint.model_id == model_id)
+    )
+    return 0 if value is None else int(value)
 
 
 def load_checkpoint(session: Session, model_id: str) -> StoredCheckpoint | None:
@@ -351,13 +461,11 @@ def load_checkpoint(session: Session, model_id: str) -> StoredCheckpoint | None:
 
 
 def assignment_counts(session: Session, model_id: str) -> dict[tuple[int, int], int]:
-    """n_kw recomputed from the stored token assignments (the invariant's right-hand side)."""
-    rows = session.execute(
-        select(Token.context, Token.word_id, func.count())
-        .where(Token.model_id == model_id)
-        .group_by(Token.context, Token.word_id)
-    ).all()
-    return {(k, w): n for k, w, n in rows}
+    """n_kw recomputed from the stored token assignments (checkpoint and batches: the invariant's
+    right-hand side)."""
+    tokens = load_assignments(session, model_id)
+    keys, counts = np.unique(np.stack([tokens.contexts, tokens.words], axis=1), axis=0, return_counts=True)
+    return {(int(k), int(w)): int(n) for (k, w), n in zip(keys, counts, strict=True)}
 
 
 def stored_counts(session: Session, model_id: str) -> dict[tuple[int, int], int]:
@@ -405,9 +513,15 @@ _SELECT_VERSION = "SELECT version FROM incremental_lda_state WHERE model_id = ?"
 _SET_VERSION = "UPDATE incremental_lda_state SET version = ? WHERE model_id = ?"
 
 
-def load_changes(session: Session, model_id: str, *, since_version: int, word_count: int) -> StoredChanges | None:
-    """The rows written after ``since_version`` (None when the model is gone); read them in one
-    snapshot (:func:`storage.database.snapshot`) or under the model's write lock."""
+def load_changes(
+    session: Session, model_id: str, *, since_version: int, word_count: int, token_count: int
+) -> StoredChanges | None:
+    """What the writes after ``since_version`` changed, for a model in memory with ``word_count`` words
+    and ``token_count`` tokens (None when the model is gone); read it in one snapshot
+    (:func:`storage.database.snapshot`) or under the model's write lock. Raises
+    :class:`BehindCompactionError` when batches after ``since_version`` were deleted by a checkpoint
+    (the caller reloads the model) and :class:`DamagedBatchError` when the batches do not continue
+    ``token_count``."""
     state = session.execute(
         select(
             IncrementalLdaState.version,
@@ -418,12 +532,17 @@ def load_changes(session: Session, model_id: str, *, since_version: int, word_co
     ).one_or_none()
     if state is None:
         return None
+    compacted = compacted_version(session, model_id)
+    if since_version < compacted:
+        raise BehindCompactionError(
+            f"model {model_id!r} is at version {since_version}; its token batches up to version {compacted} "
+            "were folded into its checkpoint"
+        )
     words = session.execute(
         select(Word.name, Word.kind).where(Word.model_id == model_id, Word.id >= word_count).order_by(Word.id)
     ).all()
-    driver = DriverStatements(session)
-    tokens = _int_rows(driver, _SELECT_TOKENS_SINCE, (model_id, since_version), 4)
-    counts = _int_rows(driver, _SELECT_COUNTS_SINCE, (model_id, since_version), 3)
+    tokens = replay_batches(load_batches(session, model_id, since_version=since_version), token_count)
+    counts = _int_rows(DriverStatements(session), _SELECT_COUNTS_SINCE, (model_id, since_version), 3)
     return StoredChanges(
         version=int(state.version),
         scene_count=int(state.scene_count),
@@ -437,9 +556,7 @@ def load_changes(session: Session, model_id: str, *, since_version: int, word_co
 
 # Bulk reads straight through the driver: numpy converts the driver's tuples much faster than
 # SQLAlchemy's Row objects (the measurement: docs/benchmarks.md).
-_SELECT_TOKENS = "SELECT scene_id, word_id, context FROM token WHERE model_id = ? ORDER BY id"
 _SELECT_COUNTS = "SELECT context, word_id, count FROM context_word_count WHERE model_id = ?"
-_SELECT_TOKENS_SINCE = "SELECT id, scene_id, word_id, context FROM token WHERE model_id = ? AND version > ? ORDER BY id"
 _SELECT_COUNTS_SINCE = "SELECT context, word_id, count FROM context_word_count WHERE model_id = ? AND version > ?"
 
 

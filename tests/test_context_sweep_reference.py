@@ -4,13 +4,16 @@ The kernels write a token's counts only when it moves (core/context/_gibbs_kerne
 above ``sweep_documents``). The references below do what the textbook does, and what the kernels
 did before: take the token out of its counts, compute every weight from the counts without it,
 draw, put it back. Python floats are IEEE doubles and numba compiles without fastmath, so the
-same expressions on the same values must give the same weights, the same draws and the same
-chain; any change of rounding would show as a different assignment within a few sweeps.
+same expressions on the same values give the same weights, the same draws and the same chain: a
+wrong weight, count or layout shows as a different assignment within a few sweeps. (A change in
+the last bit of a sum alone shows only when a uniform falls within that bit of a boundary, which
+is rare: the lanes kernel's tree of lane sums and the serial lane sums it replaced gave the same
+10 million draws on the benchmark's corpora, docs/context.md.)
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 import numpy as np
 import pytest
@@ -18,6 +21,14 @@ import pytest
 from core.context._gibbs_kernels import LANES, sweep_documents, sweep_documents_by_lanes
 
 Counts = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def sum_in_order(values: Iterable[float]) -> float:
+    """Left to right from 0.0, as a running sum in a loop adds."""
+    total = 0.0
+    for value in values:
+        total += value
+    return total
 
 
 def _take_out(w: int, d: int, k: int, counts: Counts, change: int) -> None:
@@ -68,8 +79,9 @@ def reference_lanes_sweep(
     vocab_size: int,
     uniforms: np.ndarray,
 ) -> None:
-    """Weights (n_wk + ξ) · ((n_dk + α) · 1 / (n_k + |W|ξ)) summed in LANES interleaved lanes; a lane
-    past u · Σ, then a context within it (the layout of ``sweep_documents_by_lanes``)."""
+    """Weights (n_wk + ξ) · ((n_dk + α) · 1 / (n_k + |W|ξ)) summed in LANES interleaved lanes (the even
+    and the odd rows of eight apart, then added); the lane whose edge u · Σ passes, then a context
+    within it (the layout of ``sweep_documents_by_lanes``)."""
     z, n_wk, n_k, n_dk = counts
     v_xi = vocab_size * xi
     n_contexts = n_k.shape[0]
@@ -83,19 +95,23 @@ def reference_lanes_sweep(
             for k in range(n_contexts):
                 coefficient = (int(n_dk[d, k]) + alpha) * (1.0 / (int(n_k[k]) + v_xi))
                 weights[k] = (int(n_wk[w, k]) + xi) * coefficient
-            lane_mass = [0.0] * LANES
-            for j in range(0, depth * LANES, LANES):
-                for lane_index in range(LANES):
-                    lane_mass[lane_index] += weights[j + lane_index]
-            mass = lane_mass
-            total = ((mass[0] + mass[1]) + (mass[2] + mass[3])) + ((mass[4] + mass[5]) + (mass[6] + mass[7]))
+            rows = [weights[j : j + LANES] for j in range(0, depth * LANES, LANES)] + [[0.0] * LANES]
+            even = [sum_in_order(row[m] for row in rows[0::2]) for m in range(LANES)]
+            odd = [sum_in_order(row[m] for row in rows[1::2]) for m in range(LANES)]
+            mass = [even[m] + odd[m] for m in range(LANES)]
+            edge = [mass[0], mass[0] + mass[1]]  # edge[m - 1]: the mass of lanes 0..m-1
+            edge.append(edge[1] + mass[2])
+            edge.append(edge[1] + (mass[2] + mass[3]))
+            edge.append(edge[3] + mass[4])
+            edge.append(edge[3] + (mass[4] + mass[5]))
+            edge.append(edge[5] + mass[6])
+            total = edge[3] + ((mass[4] + mass[5]) + (mass[6] + mass[7]))
             target = float(uniforms[u_index]) * total
             u_index += 1
-            lane, lower, cumulative = 0, 0.0, 0.0
+            lane, lower = 0, 0.0
             for m_index in range(LANES - 1):
-                cumulative += lane_mass[m_index]
-                if cumulative <= target:
-                    lane, lower = m_index + 1, cumulative
+                if edge[m_index] <= target:
+                    lane, lower = m_index + 1, edge[m_index]
             lane = min(lane, min(LANES, n_contexts) - 1)
             target -= lower
             steps, cumulative = 0, 0.0

@@ -151,11 +151,11 @@ def sweep_documents_by_lanes(
     """
     v_xi = vocab_size * xi
     depth = (n_contexts + LANES - 1) // LANES
+    padded = (depth + 1) // 2 * 2 * LANES  # an even number of rows
     last_lane = min(LANES, n_contexts) - 1
     inverse = _inverse_totals(n_k, n_contexts, v_xi)
     below = _inverse_totals(n_k, n_contexts, v_xi, -1)
-    weights = np.zeros(depth * LANES)  # entries from n_contexts on stay 0
-    lane_mass = np.empty(LANES)
+    weights = np.zeros(padded)  # entries from n_contexts on stay 0
     coefficient = np.empty(n_contexts)
     u_index = 0
     for d in range(first_doc, stop_doc):
@@ -167,30 +167,43 @@ def sweep_documents_by_lanes(
             for k in range(n_contexts):
                 weights[k] = (n_wk[w, k] + xi) * coefficient[k]
             weights[old] = ((n_wk[w, old] - 1) + xi) * (((n_dk[d, old] - 1) + alpha) * below[old])
-            mass_0 = mass_1 = mass_2 = mass_3 = mass_4 = mass_5 = mass_6 = mass_7 = 0.0
-            for j in range(0, depth * LANES, LANES):
-                mass_0 += weights[j]
-                mass_1 += weights[j + 1]
-                mass_2 += weights[j + 2]
-                mass_3 += weights[j + 3]
-                mass_4 += weights[j + 4]
-                mass_5 += weights[j + 5]
-                mass_6 += weights[j + 6]
-                mass_7 += weights[j + 7]
-            lane_mass[0], lane_mass[1], lane_mass[2], lane_mass[3] = mass_0, mass_1, mass_2, mass_3
-            lane_mass[4], lane_mass[5], lane_mass[6], lane_mass[7] = mass_4, mass_5, mass_6, mass_7
-            total = ((mass_0 + mass_1) + (mass_2 + mass_3)) + ((mass_4 + mass_5) + (mass_6 + mass_7))
+            # Lane sums in two sets (even and odd rows of eight), then the lane boundaries as a tree
+            # of sums: three dependent additions each instead of ``depth`` and seven.
+            a_0 = a_1 = a_2 = a_3 = a_4 = a_5 = a_6 = a_7 = 0.0
+            b_0 = b_1 = b_2 = b_3 = b_4 = b_5 = b_6 = b_7 = 0.0
+            for j in range(0, padded, 2 * LANES):
+                a_0 += weights[j]
+                a_1 += weights[j + 1]
+                a_2 += weights[j + 2]
+                a_3 += weights[j + 3]
+                a_4 += weights[j + 4]
+                a_5 += weights[j + 5]
+                a_6 += weights[j + 6]
+                a_7 += weights[j + 7]
+                b_0 += weights[j + 8]
+                b_1 += weights[j + 9]
+                b_2 += weights[j + 10]
+                b_3 += weights[j + 11]
+                b_4 += weights[j + 12]
+                b_5 += weights[j + 13]
+                b_6 += weights[j + 14]
+                b_7 += weights[j + 15]
+            mass_0, mass_1, mass_2, mass_3 = a_0 + b_0, a_1 + b_1, a_2 + b_2, a_3 + b_3
+            mass_4, mass_5, mass_6, mass_7 = a_4 + b_4, a_5 + b_5, a_6 + b_6, a_7 + b_7
+            edge_2 = mass_0 + mass_1  # edge_m: the mass of lanes 0..m-1, non-decreasing in m
+            edge_4 = edge_2 + (mass_2 + mass_3)
+            edge_6 = edge_4 + (mass_4 + mass_5)
+            total = edge_4 + ((mass_4 + mass_5) + (mass_6 + mass_7))
+            edge_3, edge_5, edge_7 = edge_2 + mass_2, edge_4 + mass_4, edge_6 + mass_6
             target = uniforms[u_index] * total
             u_index += 1
-            # Branch-free: count the lane boundaries and then the lane's steps that ``target`` passes.
+            # Branch-free: count the lane boundaries ``target`` passes, then the lane's steps.
             lane = 0
             lower = 0.0
-            cumulative = 0.0
-            for m in range(LANES - 1):
-                cumulative += lane_mass[m]
-                passed = cumulative <= target
+            for boundary in (mass_0, edge_2, edge_3, edge_4, edge_5, edge_6, edge_7):
+                passed = boundary <= target
                 lane += passed
-                lower = cumulative if passed else lower
+                lower = boundary if passed else lower
             lane = min(lane, last_lane)
             target -= lower
             steps = 0

@@ -69,9 +69,10 @@ def sweep_documents(
     """One Gibbs sweep over the tokens of documents ``first_doc:stop_doc`` (Algorithm 1, Eq. 5):
     K weights, one running cumulative sum, a linear search for ``u · Σ``.
 
-    Counts are written only when a token moves (the comment above). The step of Eq. 5 is written
-    out here rather than shared: this is the hot loop, and a helper halves its throughput
-    (measured, also with numba's ``inline="always"``).
+    Counts are written only when a token moves (the comment above; the move is
+    :func:`_move_token`). The weights and the draw are written out here rather than shared:
+    this is the hot loop, and a helper for that step halved its throughput (measured, also with
+    numba's ``inline="always"``).
     """
     v_xi = vocab_size * xi
     inverse = _inverse_totals(n_k, n_contexts, v_xi)

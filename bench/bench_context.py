@@ -94,7 +94,7 @@ def timed(work: Callable[[], object]) -> tuple[float, float]:
 
 
 def ours_state(docs: list[np.ndarray], vocab_size: int, n_topics: int) -> tuple[LDAState, np.random.Generator]:
-    """Our chain on ``docs``: every z drawn uniformly, then one sweep (the start is not timed)."""
+    """Our chain on ``docs``, every z drawn uniformly, and its generator."""
     words = np.concatenate(docs)
     offsets = np.concatenate([[0], np.cumsum([len(d) for d in docs])]).astype(np.int32)
     state = LDAState.from_arrays(ALPHA, XI, vocab_size, n_topics, words, np.zeros_like(words), offsets)
@@ -281,6 +281,8 @@ def main() -> dict:
     parser.add_argument("--quick", action="store_true", help="smaller corpora and fewer calls")
     parser.add_argument("--repeats", type=int, default=None, help="timings of each sampler (5; --quick: 3)")
     args = parser.parse_args(sys.argv[1:])
+    if args.repeats is not None and args.repeats < 1:
+        parser.error(f"--repeats must be at least 1, got {args.repeats}")
     logging.getLogger("lda").setLevel(logging.WARNING)
     sweeps, large_docs, calls, updates = (10, 2_000, 100, 100) if args.quick else (10, 20_000, 1_000, 500)
     repeats = args.repeats or (3 if args.quick else 5)

@@ -10,10 +10,13 @@
   lanes, sparse) and with the one :func:`core.context.lda.sweep_kernel` chooses
   for the corpus's K. Initialisation is excluded: tomotopy is timed after
   ``train(0)``, ``lda`` as the difference between two fits of different lengths,
-  ours after a first sweep. Ratios by wall clock, and by CPU time (which leaves out
-  the time other processes held this shared machine's cores).
+  ours after a first sweep. Ours (each kernel) and tomotopy are timed in turn,
+  ``--repeats`` times (each chain goes on from where it was), and each figure is the
+  median over the repeats, each ratio the median of the repeats' ratios: by wall
+  clock, and by CPU time (which leaves out the time other processes held this
+  shared machine's cores), with the CPU-time ratio's range over the repeats.
 - **Kernel crossover**: the three sweep kernels on one corpus shape (1,000 words,
-  documents of 50–100 tokens) for K from 16 to 200, after 20 dense sweeps, each
+  documents of 50–100 tokens) for K from 8 to 600, after 20 dense sweeps, each
   kernel's best of 7 single sweeps by CPU time, interleaved: where
   ``sweep_kernel``'s thresholds come from.
 - **Context detection** of a 5-object scene of the paper's world
@@ -90,29 +93,76 @@ def timed(work: Callable[[], object]) -> tuple[float, float]:
     return time.perf_counter() - wall, time.process_time() - cpu
 
 
-def ours_throughput(
-    docs: list[np.ndarray], vocab_size: int, n_topics: int, sweeps: int, kernel: str
-) -> tuple[float, float]:
-    """Tokens × sweeps per second of ``LDAState.sweep`` with ``kernel``, by wall clock and by CPU time."""
+def ours_state(docs: list[np.ndarray], vocab_size: int, n_topics: int) -> tuple[LDAState, np.random.Generator]:
+    """Our chain on ``docs``, every z drawn uniformly, and its generator."""
     words = np.concatenate(docs)
     offsets = np.concatenate([[0], np.cumsum([len(d) for d in docs])]).astype(np.int32)
     state = LDAState.from_arrays(ALPHA, XI, vocab_size, n_topics, words, np.zeros_like(words), offsets)
     rng = np.random.default_rng(0)
     state.initialize_randomly(rng)
-    state.sweep(rng, kernel=kernel)
-    seconds = timed(lambda: state.sweep(rng, sweeps, kernel=kernel))
-    return words.shape[0] * sweeps / seconds[0], words.shape[0] * sweeps / seconds[1]
+    return state, rng
 
 
-def tomotopy_throughput(docs: list[np.ndarray], n_topics: int, sweeps: int) -> tuple[float, float]:
+def tomotopy_model(docs: list[np.ndarray], n_topics: int) -> tp.LDAModel:
+    """tomotopy's chain on ``docs``, initialised (``train(0)``), priors fixed."""
     model = tp.LDAModel(k=n_topics, alpha=ALPHA, eta=XI, seed=0)
     for doc in docs:
         model.add_doc([f"w{w}" for w in doc])
     model.optim_interval = 0
     model.train(0, workers=1)
-    seconds = timed(lambda: model.train(sweeps, workers=1))
+    return model
+
+
+def sampler_throughput(
+    docs: list[np.ndarray], vocab_size: int, n_topics: int, sweeps: int, repeats: int
+) -> dict[str, list[tuple[float, float]]]:
+    """Tokens × sweeps per second (wall clock, CPU time) of ``sweeps`` sweeps of each of our kernels
+    and of tomotopy (``workers=1``), timed in turn ``repeats`` times, by kernel and ``"tomotopy"``."""
     work = sum(len(d) for d in docs) * sweeps
-    return work / seconds[0], work / seconds[1]
+    chains = {kernel: ours_state(docs, vocab_size, n_topics) for kernel in SWEEP_KERNELS}
+    for kernel, (state, rng) in chains.items():
+        state.sweep(rng, kernel=kernel)
+    model = tomotopy_model(docs, n_topics)
+    runs: dict[str, list[tuple[float, float]]] = {name: [] for name in [*SWEEP_KERNELS, "tomotopy"]}
+    for _ in range(repeats):
+        for kernel, (state, rng) in chains.items():
+            wall, cpu = timed(functools.partial(state.sweep, rng, sweeps, kernel=kernel))
+            runs[kernel].append((work / wall, work / cpu))
+        wall, cpu = timed(functools.partial(model.train, sweeps, workers=1))
+        runs["tomotopy"].append((work / wall, work / cpu))
+    return runs
+
+
+def throughput_row(
+    runs: dict[str, list[tuple[float, float]]], chosen: str, tokens: int, lda_package: float
+) -> dict[str, Any]:
+    """Medians over the repeats of each throughput and of each ratio to tomotopy in the same repeat."""
+    tomotopy = runs["tomotopy"]
+
+    def ratios(kernel: str, clock: int) -> list[float]:
+        return [ours[clock] / reference[clock] for ours, reference in zip(runs[kernel], tomotopy, strict=True)]
+
+    def median(kernel: str, clock: int) -> float:
+        return statistics.median(run[clock] for run in runs[kernel])
+
+    chosen_cpu = ratios(chosen, 1)
+    return {
+        "tokens": tokens,
+        "repeats": len(tomotopy),
+        "kernel": chosen,
+        "ours_tokens_sweeps_per_s": median(chosen, 0),
+        **{f"{kernel}_tokens_sweeps_per_s": median(kernel, 0) for kernel in SWEEP_KERNELS},
+        **{f"ratio_{kernel}_over_tomotopy": statistics.median(ratios(kernel, 0)) for kernel in SWEEP_KERNELS},
+        **{f"ratio_{kernel}_over_tomotopy_cpu_time": statistics.median(ratios(kernel, 1)) for kernel in SWEEP_KERNELS},
+        "tomotopy_tokens_sweeps_per_s": median("tomotopy", 0),
+        "tomotopy_tokens_sweeps_per_s_cpu_time": median("tomotopy", 1),
+        "lda_package_tokens_sweeps_per_s": lda_package,
+        "ratio_ours_over_tomotopy": statistics.median(ratios(chosen, 0)),
+        "ratio_ours_over_tomotopy_cpu_time": statistics.median(chosen_cpu),
+        "ratio_ours_over_tomotopy_cpu_time_min": min(chosen_cpu),
+        "ratio_ours_over_tomotopy_cpu_time_max": max(chosen_cpu),
+        "ratio_ours_over_lda_package": median(chosen, 0) / lda_package,
+    }
 
 
 def lda_package_throughput(docs: list[np.ndarray], vocab_size: int, n_topics: int, sweeps: int) -> float:
@@ -229,9 +279,13 @@ def online(sizes: tuple[int, ...], updates: int) -> dict[str, dict[str, float]]:
 def main() -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="smaller corpora and fewer calls")
+    parser.add_argument("--repeats", type=int, default=None, help="timings of each sampler (5; --quick: 3)")
     args = parser.parse_args(sys.argv[1:])
+    if args.repeats is not None and args.repeats < 1:
+        parser.error(f"--repeats must be at least 1, got {args.repeats}")
     logging.getLogger("lda").setLevel(logging.WARNING)
-    sweeps, large_docs, calls, updates = (10, 2_000, 100, 100) if args.quick else (50, 20_000, 1_000, 500)
+    sweeps, large_docs, calls, updates = (10, 2_000, 100, 100) if args.quick else (10, 20_000, 1_000, 500)
+    repeats = args.repeats or (3 if args.quick else 5)
     corpora = {
         "small (29 words, K=3)": (synthetic_corpus(2_000, 29, 3, (20, 40), 0), 29, 3),
         "medium (500 words, K=20)": (synthetic_corpus(large_docs // 2, 500, 20, (50, 100), 2), 500, 20),
@@ -239,25 +293,12 @@ def main() -> dict:
     }
     throughput: dict[str, dict[str, Any]] = {}
     for name, (docs, vocab_size, n_topics) in corpora.items():
-        by_kernel = {kernel: ours_throughput(docs, vocab_size, n_topics, sweeps, kernel) for kernel in SWEEP_KERNELS}
-        tomotopy = tomotopy_throughput(docs, n_topics, sweeps)
-        lda_package = lda_package_throughput(docs, vocab_size, n_topics, max(10, sweeps // 5))
-        chosen = sweep_kernel(n_topics)
-        ours = by_kernel[chosen][0]
-        throughput[name] = {
-            "tokens": int(sum(len(d) for d in docs)),
-            "kernel": chosen,
-            "ours_tokens_sweeps_per_s": ours,
-            **{f"{kernel}_tokens_sweeps_per_s": wall for kernel, (wall, _) in by_kernel.items()},
-            **{f"ratio_{kernel}_over_tomotopy": wall / tomotopy[0] for kernel, (wall, _) in by_kernel.items()},
-            **{f"ratio_{kernel}_over_tomotopy_cpu_time": cpu / tomotopy[1] for kernel, (_, cpu) in by_kernel.items()},
-            "tomotopy_tokens_sweeps_per_s": tomotopy[0],
-            "tomotopy_tokens_sweeps_per_s_cpu_time": tomotopy[1],
-            "lda_package_tokens_sweeps_per_s": lda_package,
-            "ratio_ours_over_tomotopy": ours / tomotopy[0],
-            "ratio_ours_over_lda_package": ours / lda_package,
-        }
-    crossover = kernel_crossover((16, 32, 128) if args.quick else (16, 24, 32, 40, 50, 100, 128, 150, 200), 4_000)
+        runs = sampler_throughput(docs, vocab_size, n_topics, sweeps, repeats)
+        lda_package = lda_package_throughput(docs, vocab_size, n_topics, 10)
+        throughput[name] = throughput_row(runs, sweep_kernel(n_topics), int(sum(len(d) for d in docs)), lda_package)
+    crossover = kernel_crossover(
+        (10, 12, 50, 600) if args.quick else (8, 10, 12, 16, 32, 50, 128, 300, 400, 600), 4_000
+    )
     sizes = (1_000, 10_000) if args.quick else (1_000, 100_000)
     updates_by_size = online(sizes, updates)
     medians = [updates_by_size[str(size)]["median_us"] for size in sizes]
@@ -275,7 +316,9 @@ def main() -> dict:
     for name, row in throughput.items():
         print(
             f"{name:>26}: ours ({row['kernel']}) {row['ours_tokens_sweeps_per_s'] / 1e6:6.1f} M tok·sweep/s, "
-            f"tomotopy {row['tomotopy_tokens_sweeps_per_s'] / 1e6:6.1f} M ({row['ratio_ours_over_tomotopy']:.2f}x), "
+            f"tomotopy {row['tomotopy_tokens_sweeps_per_s'] / 1e6:6.1f} M ({row['ratio_ours_over_tomotopy']:.2f}x; "
+            f"CPU time {row['ratio_ours_over_tomotopy_cpu_time']:.2f}x, {row['ratio_ours_over_tomotopy_cpu_time_min']:.2f}"
+            f"-{row['ratio_ours_over_tomotopy_cpu_time_max']:.2f} over {row['repeats']} repeats), "
             f"lda {row['lda_package_tokens_sweeps_per_s'] / 1e6:6.1f} M ({row['ratio_ours_over_lda_package']:.2f}x)"
         )
         print(

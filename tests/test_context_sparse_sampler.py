@@ -133,7 +133,7 @@ def test_the_default_kernel_is_chosen_by_k_alone() -> None:
     without a kernel runs exactly the chosen one."""
     assert [sweep_kernel(k) for k in (1, 3, 10, LANES_FROM_CONTEXTS - 1)] == ["dense"] * 4
     assert [sweep_kernel(k) for k in (LANES_FROM_CONTEXTS, 50, SPARSE_FROM_CONTEXTS - 1)] == ["lanes"] * 3
-    assert [sweep_kernel(k) for k in (SPARSE_FROM_CONTEXTS, 500)] == ["sparse"] * 2
+    assert [sweep_kernel(k) for k in (SPARSE_FROM_CONTEXTS, 2 * SPARSE_FROM_CONTEXTS)] == ["sparse"] * 2
     for n_contexts in (3, LANES_FROM_CONTEXTS, SPARSE_FROM_CONTEXTS):
         default, explicit, other = (_random_state(7, 20, 30, n_contexts, 0.1, 0.1) for _ in range(3))
         default.sweep(np.random.default_rng(8), 3)

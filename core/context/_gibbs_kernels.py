@@ -30,14 +30,27 @@ def _draw(cumulative: np.ndarray, n_contexts: int, u: float) -> int:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _inverse_totals(n_k: np.ndarray, n_contexts: int, v_xi: float) -> np.ndarray:
+def _inverse_totals(n_k: np.ndarray, n_contexts: int, v_xi: float, shift: int = 0) -> np.ndarray:
+    """``1 / ((n_k + shift) + |W|ξ)`` per context (``shift = -1``: with one token taken out)."""
     inverse = np.empty(n_contexts)
     for k in range(n_contexts):
-        inverse[k] = 1.0 / (n_k[k] + v_xi)
+        inverse[k] = 1.0 / ((n_k[k] + shift) + v_xi)
     return inverse
 
 
-@numba.njit(cache=True, nogil=True)
+# The sweeps below compute Eq. 5's conditional of token i from the full counts: the counts
+# without token i (the ¬i of Eq. 5) differ from them only in i's own context z_i, by one, so
+# only that context's term is written with n − 1 (``below[k] = 1 / ((n_k − 1) + |W|ξ)`` is kept
+# beside ``inverse``). The counts are then written only when the token moves, which in a
+# mixed chain is the exception: a token that stays costs no count update and no division.
+# Every weight is the same floating-point expression, on the same values, as taking the token
+# out, sampling and putting it back, so the draws are those of that textbook form bit for bit
+# (tests/test_context_sweep_reference.py compares with it). error_model="numpy": ``below`` of an
+# empty context may divide by zero (|W|ξ = 1); that entry is never read, since a token's own
+# context holds at least that token.
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def sweep_documents(
     words: np.ndarray,
     z: np.ndarray,
@@ -53,42 +66,63 @@ def sweep_documents(
     vocab_size: int,
     uniforms: np.ndarray,
 ) -> None:
-    """One Gibbs sweep over the tokens of documents ``first_doc:stop_doc`` (Algorithm 1, Eq. 5).
+    """One Gibbs sweep over the tokens of documents ``first_doc:stop_doc`` (Algorithm 1, Eq. 5):
+    K weights, one running cumulative sum, a linear search for ``u · Σ``.
 
-    The step of Eq. 5 is written out here and in :func:`sample_tokens` rather than shared:
-    this is the hot loop, and a helper halves its throughput (measured, also with numba's
-    ``inline="always"``).
+    Counts are written only when a token moves (the comment above; the move is
+    :func:`_move_token`). The weights and the draw are written out here rather than shared:
+    this is the hot loop, and a helper for that step halved its throughput (measured, also with
+    numba's ``inline="always"``).
     """
     v_xi = vocab_size * xi
     inverse = _inverse_totals(n_k, n_contexts, v_xi)
+    below = _inverse_totals(n_k, n_contexts, v_xi, -1)
     cumulative = np.empty(n_contexts)
     u_index = 0
     for d in range(first_doc, stop_doc):
         for i in range(doc_offsets[d], doc_offsets[d + 1]):
             w = words[i]
             old = z[i]
-            n_wk[w, old] -= 1
-            n_k[old] -= 1
-            n_dk[d, old] -= 1
-            inverse[old] = 1.0 / (n_k[old] + v_xi)
             total = 0.0
-            for k in range(n_contexts):
+            for k in range(old):
+                total += (n_wk[w, k] + xi) * inverse[k] * (n_dk[d, k] + alpha)
+                cumulative[k] = total
+            total += ((n_wk[w, old] - 1) + xi) * below[old] * ((n_dk[d, old] - 1) + alpha)
+            cumulative[old] = total
+            for k in range(old + 1, n_contexts):
                 total += (n_wk[w, k] + xi) * inverse[k] * (n_dk[d, k] + alpha)
                 cumulative[k] = total
             new = _draw(cumulative, n_contexts, uniforms[u_index])
             u_index += 1
-            z[i] = new
-            n_wk[w, new] += 1
-            n_k[new] += 1
-            n_dk[d, new] += 1
-            inverse[new] = 1.0 / (n_k[new] + v_xi)
+            if new != old:
+                z[i] = new
+                _move_token(w, d, old, new, n_wk, n_k, n_dk, inverse, below, v_xi)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _move_token(
+    w: int, d: int, old: int, new: int, n_wk: np.ndarray, n_k: np.ndarray, n_dk: np.ndarray,
+    inverse: np.ndarray, below: np.ndarray, v_xi: float,
+) -> None:  # fmt: skip
+    """Move one token of concept ``w`` in scene ``d`` from context ``old`` to ``new``: its counts,
+    and ``inverse``/``below`` of both contexts (each keeps ``1 / ((n_k [− 1]) + |W|ξ)``)."""
+    n_wk[w, old] -= 1
+    n_k[old] -= 1
+    n_dk[d, old] -= 1
+    inverse[old] = below[old]
+    below[old] = 1.0 / ((n_k[old] - 1) + v_xi)
+    n_wk[w, new] += 1
+    n_k[new] += 1
+    n_dk[d, new] += 1
+    below[new] = inverse[new]
+    inverse[new] = 1.0 / (n_k[new] + v_xi)
 
 
 LANES = 8
 """Contexts k, k + 8, k + 16, ... form one lane of :func:`sweep_documents_by_lanes`."""
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def sweep_documents_by_lanes(
     words: np.ndarray,
     z: np.ndarray,
@@ -108,19 +142,21 @@ def sweep_documents_by_lanes(
     sum taken in :data:`LANES` interleaved lanes instead of one running sum.
 
     Context k's weight is ``(n_wk + ξ) · c_k`` with ``c_k = (n_dk + α) / (n_k + |W|ξ)`` kept
-    per scene (two entries change per token). The weights are computed in one pass the
-    compiler vectorises; the eight lane sums grow independently (one running sum chains K
-    additions, each waiting for the one before); the draw ``u · Σ_k`` picks a lane, then a
-    context within it. Same distribution as :func:`sweep_documents` (the order in which the
-    contexts are laid out on [0, 1) differs, so the same ``u`` can give another context),
-    one uniform per token.
+    per scene (two entries change per move). The weights are computed in one pass the
+    compiler vectorises, then the token's own context's entry is rewritten with its counts
+    less one (the comment above :func:`sweep_documents`); the eight lane sums grow
+    independently (one running sum chains K additions, each waiting for the one before); the
+    draw ``u · Σ_k`` picks a lane, then a context within it. Same distribution as
+    :func:`sweep_documents` (the order in which the contexts are laid out on [0, 1) differs,
+    so the same ``u`` can give another context), one uniform per token.
     """
     v_xi = vocab_size * xi
     depth = (n_contexts + LANES - 1) // LANES
+    padded = (depth + 1) // 2 * 2 * LANES  # an even number of rows
     last_lane = min(LANES, n_contexts) - 1
     inverse = _inverse_totals(n_k, n_contexts, v_xi)
-    weights = np.zeros(depth * LANES)  # entries from n_contexts on stay 0
-    lane_mass = np.empty(LANES)
+    below = _inverse_totals(n_k, n_contexts, v_xi, -1)
+    weights = np.zeros(padded)  # entries from n_contexts on stay 0
     coefficient = np.empty(n_contexts)
     u_index = 0
     for d in range(first_doc, stop_doc):
@@ -129,51 +165,59 @@ def sweep_documents_by_lanes(
         for i in range(doc_offsets[d], doc_offsets[d + 1]):
             w = words[i]
             old = z[i]
-            n_wk[w, old] -= 1
-            n_k[old] -= 1
-            n_dk[d, old] -= 1
-            inverse[old] = 1.0 / (n_k[old] + v_xi)
-            coefficient[old] = (n_dk[d, old] + alpha) * inverse[old]
             for k in range(n_contexts):
                 weights[k] = (n_wk[w, k] + xi) * coefficient[k]
-            mass_0 = mass_1 = mass_2 = mass_3 = mass_4 = mass_5 = mass_6 = mass_7 = 0.0
-            for j in range(0, depth * LANES, LANES):
-                mass_0 += weights[j]
-                mass_1 += weights[j + 1]
-                mass_2 += weights[j + 2]
-                mass_3 += weights[j + 3]
-                mass_4 += weights[j + 4]
-                mass_5 += weights[j + 5]
-                mass_6 += weights[j + 6]
-                mass_7 += weights[j + 7]
-            lane_mass[0], lane_mass[1], lane_mass[2], lane_mass[3] = mass_0, mass_1, mass_2, mass_3
-            lane_mass[4], lane_mass[5], lane_mass[6], lane_mass[7] = mass_4, mass_5, mass_6, mass_7
-            total = ((mass_0 + mass_1) + (mass_2 + mass_3)) + ((mass_4 + mass_5) + (mass_6 + mass_7))
+            weights[old] = ((n_wk[w, old] - 1) + xi) * (((n_dk[d, old] - 1) + alpha) * below[old])
+            # Lane sums in two sets (even and odd rows of eight), then the lane boundaries as a tree
+            # of sums: three dependent additions each instead of ``depth`` and seven.
+            a_0 = a_1 = a_2 = a_3 = a_4 = a_5 = a_6 = a_7 = 0.0
+            b_0 = b_1 = b_2 = b_3 = b_4 = b_5 = b_6 = b_7 = 0.0
+            for j in range(0, padded, 2 * LANES):
+                a_0 += weights[j]
+                a_1 += weights[j + 1]
+                a_2 += weights[j + 2]
+                a_3 += weights[j + 3]
+                a_4 += weights[j + 4]
+                a_5 += weights[j + 5]
+                a_6 += weights[j + 6]
+                a_7 += weights[j + 7]
+                b_0 += weights[j + 8]
+                b_1 += weights[j + 9]
+                b_2 += weights[j + 10]
+                b_3 += weights[j + 11]
+                b_4 += weights[j + 12]
+                b_5 += weights[j + 13]
+                b_6 += weights[j + 14]
+                b_7 += weights[j + 15]
+            mass_0, mass_1, mass_2, mass_3 = a_0 + b_0, a_1 + b_1, a_2 + b_2, a_3 + b_3
+            mass_4, mass_5, mass_6, mass_7 = a_4 + b_4, a_5 + b_5, a_6 + b_6, a_7 + b_7
+            edge_2 = mass_0 + mass_1  # edge_m: the mass of lanes 0..m-1, non-decreasing in m
+            edge_4 = edge_2 + (mass_2 + mass_3)
+            edge_6 = edge_4 + (mass_4 + mass_5)
+            total = edge_4 + ((mass_4 + mass_5) + (mass_6 + mass_7))
+            edge_3, edge_5, edge_7 = edge_2 + mass_2, edge_4 + mass_4, edge_6 + mass_6
             target = uniforms[u_index] * total
             u_index += 1
-            # Branch-free: count the lane boundaries and then the lane's steps that ``target`` passes.
+            # Branch-free: count the lane boundaries ``target`` passes, then the lane's steps.
             lane = 0
-            below = 0.0
-            cumulative = 0.0
-            for m in range(LANES - 1):
-                cumulative += lane_mass[m]
-                passed = cumulative <= target
+            lower = 0.0
+            for boundary in (mass_0, edge_2, edge_3, edge_4, edge_5, edge_6, edge_7):
+                passed = boundary <= target
                 lane += passed
-                below = cumulative if passed else below
+                lower = boundary if passed else lower
             lane = min(lane, last_lane)
-            target -= below
+            target -= lower
             steps = 0
             cumulative = 0.0
             for m in range(depth - 1):
                 cumulative += weights[lane + m * LANES]
                 steps += cumulative <= target
             new = lane + min(steps, (n_contexts - 1 - lane) // LANES) * LANES  # rounding never lands past K
-            z[i] = new
-            n_wk[w, new] += 1
-            n_k[new] += 1
-            n_dk[d, new] += 1
-            inverse[new] = 1.0 / (n_k[new] + v_xi)
-            coefficient[new] = (n_dk[d, new] + alpha) * inverse[new]
+            if new != old:
+                z[i] = new
+                _move_token(w, d, old, new, n_wk, n_k, n_dk, inverse, below, v_xi)
+                coefficient[old] = (n_dk[d, old] + alpha) * inverse[old]
+                coefficient[new] = (n_dk[d, new] + alpha) * inverse[new]
 
 
 @numba.njit(cache=True, nogil=True)

@@ -50,11 +50,14 @@ _WindowArguments = tuple[
     np.ndarray, np.ndarray, np.ndarray, int, int, np.ndarray, np.ndarray, np.ndarray, int, float, float, int
 ]
 
-LANES_FROM_CONTEXTS = 32
-"""K from which :func:`sweep_kernel` picks ``"lanes"`` (measured crossover with ``"dense"``)."""
+LANES_FROM_CONTEXTS = 12
+"""K from which :func:`sweep_kernel` picks ``"lanes"``: above the service's default ``max_contexts``
+(10), so every default model keeps the dense chain, and where ``"lanes"`` is measurably faster
+(docs/context.md, "Sweep kernels")."""
 
-SPARSE_FROM_CONTEXTS = 128
-"""K from which :func:`sweep_kernel` picks ``"sparse"`` (measured crossover with ``"lanes"``)."""
+SPARSE_FROM_CONTEXTS = 512
+"""K from which :func:`sweep_kernel` picks ``"sparse"`` (measured crossover with ``"lanes"``, between
+400 and 600 on the bench's shape; the service caps K at 100, so its models never reach it)."""
 
 
 def sweep_kernel(n_contexts: int) -> str:

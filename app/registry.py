@@ -38,13 +38,15 @@ from app.services.limits import VocabularyLimits
 from app.services.perception import Perception
 from app.settings import DEFAULT_CHECKPOINT_INTERVAL
 from core.concept_web import ConceptWeb
+from core.context.hyperparameters import nest_flat_settings
 from core.context.incremental import ContextModelState, IncrementalLDA, SceneUpdate
+from core.context.k_selection import K_RULES
 from core.errors import InvalidInputError
 from core.planning import BehaviourEffects, Workspace, learn_effects
 from core.prototypes.prototypes import PrototypeSet
 from core.vocabulary import Vocabulary
 from storage.database import snapshot
-from storage.models import Model, TrainingObject
+from storage.models import HYPERPARAMETERS_VERSION, Model, TrainingObject
 from storage.repositories import feed as feed_repository
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import models as model_repository
@@ -352,7 +354,7 @@ class ModelRuntime:
             seed=row.seed,
             sigma=row.sigma,
             created_at=row.created_at,
-            hyperparameters=dict(row.hyperparameters),
+            hyperparameters=stored_hyperparameters(row),
             writer=ModelWriter(
                 row.id,
                 fitted,
@@ -479,11 +481,34 @@ def training_effects(session: Session, model_id: str) -> tuple[list[list[float]]
     return vectors, behaviours, len(objects)
 
 
+def stored_hyperparameters(row: Model) -> dict[str, Any]:
+    """A model row's hyperparameters in the nested form (alembic 0006).
+
+    A row whose ``hyperparameters_version`` is older was written flat by a process older than 0006,
+    still running during a rolling upgrade (the column's server default marks it): it is read as
+    the deprecated flat form is read from a request, and a retired K rule continues as ``scenes``,
+    as the migration carries such rows over.
+    """
+    settings = dict(row.hyperparameters)
+    if row.hyperparameters_version >= HYPERPARAMETERS_VERSION:
+        return settings
+    nested, _ = nest_flat_settings(settings)
+    if nested["k_rule"]["name"] not in K_RULES:
+        logger.warning(
+            "model %s was stored flat with the K rule %r, which the service no longer offers: it continues with 'scenes'",
+            row.id,
+            nested["k_rule"]["name"],
+        )
+        nested, _ = nest_flat_settings({**settings, "k_selection": "scenes"})
+    # Settings no version reads any more (the retired rule's) are dropped, as the migration drops them.
+    return {group: nested[group] for group in ("priors", "sampler", "k_rule") if group in nested}
+
+
 def load_runtime(session: Session, row: Model) -> ModelRuntime:
     """A model exactly as stored: LDA counts, assignments and random state included, from its latest
     checkpoint and the rows written since (docs/scaling.md, "Checkpoints")."""
     stored = lda_repository.load_start(session, row.id)
-    incremental_lda = stored_incremental_lda(stored, dict(row.hyperparameters))
+    incremental_lda = stored_incremental_lda(stored, stored_hyperparameters(row))
     vectors, behaviours, training_count = training_effects(session, row.id)
     return ModelRuntime.from_row(
         row,

@@ -2,19 +2,23 @@
 
 from __future__ import annotations
 
+import importlib.util
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 import pytest
 import sqlalchemy as sa
 from sqlalchemy import Engine
+from sqlalchemy.orm import Session
 
 from alembic import command
+from app.registry import stored_hyperparameters
 from core.context import Hyperparameters, ScenesSettings
 from core.context.hyperparameters import nest_flat_settings
 from core.errors import InvalidInputError
 from storage.migrations import alembic_config, upgrade_to_head
-from storage.models import JSONType
+from storage.models import JSONType, Model
 
 #: What the service stored before 0006: the full flat dump of every setting (a few changed).
 SCENES_ROW: dict[str, Any] = {
@@ -43,6 +47,15 @@ MODEL = sa.table(
     sa.column("created_at", sa.DateTime(timezone=True)),
     sa.column("updated_at", sa.DateTime(timezone=True)),
 )
+
+
+#: The migration's own module (its file name is not an importable name).
+_SPEC = importlib.util.spec_from_file_location(
+    "migration_0006", Path(__file__).resolve().parents[1] / "alembic" / "versions" / "0006_nested_hyperparameters.py"
+)
+assert _SPEC is not None and _SPEC.loader is not None
+MIGRATION = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(MIGRATION)
 
 
 def _migrate(engine: Engine, action: str, revision: str) -> None:
@@ -134,3 +147,28 @@ def test_a_nested_row_with_the_likelihood_rule_is_refused_naming_the_field() -> 
     with pytest.raises(InvalidInputError) as error:
         Hyperparameters.from_dict({"k_rule": {"name": "likelihood"}})
     assert error.value.field == "k_rule.name" and "experiments/baselines" in error.value.problem
+
+
+def test_a_flat_row_written_during_a_rolling_upgrade_loads_as_the_migration_would_carry_it(engine: Engine) -> None:
+    """A process older than 0006 still writes flat rows after the upgrade; the column's server
+    default marks them as version 1, and the registry reads them as the migration would have."""
+    upgrade_to_head(engine)
+    with engine.begin() as connection:
+        connection.execute(
+            MODEL.insert(),
+            [
+                {
+                    "id": model_id, "name": model_id, "seed": 0, "sigma": 0.5, "hyperparameters": row,
+                    "vocabulary": {}, "created_at": NOW, "updated_at": NOW,
+                }
+                for model_id, row in ROWS.items()
+            ],
+        )  # fmt: skip
+    with Session(engine) as session:
+        rows = {row.id: row for row in session.scalars(sa.select(Model))}
+    assert {row.hyperparameters_version for row in rows.values()} == {1}
+    read = {model_id: stored_hyperparameters(row) for model_id, row in rows.items()}
+    for model_id, flat_row in ROWS.items():
+        carried = MIGRATION.nested(model_id, flat_row)  # what migration 0006 writes for the same row
+        assert Hyperparameters.from_dict(read[model_id]) == Hyperparameters.from_dict(carried), model_id
+    assert read["likelihood"]["k_rule"]["name"] == "scenes" and read["likelihood"]["k_rule"]["split_scans"] == 2

@@ -101,6 +101,8 @@ class ModelWrite:
     """Set by a service whose own statements stored :attr:`version` (a scene's state row)."""
     unchanged: bool = False
     """Set when the write changed nothing (an idempotent replay): no new version, no notification."""
+    notified: bool = False
+    """Set by a service whose own statements sent the change notification (a scene, in its pipeline)."""
 
 
 class ModelWriter:
@@ -187,7 +189,8 @@ class ModelWriter:
                 if not write.unchanged:
                     if not write.version_saved:
                         lda_repository.set_version(session, self.id, write.version)
-                    feed_repository.notify_change(session, self.id)
+                    if not write.notified:
+                        feed_repository.notify_change(session, self.id)
             self._committed(write)
         except BaseException as error:
             if self._changed:

@@ -17,6 +17,7 @@ use deferred transactions: in WAL mode they never wait for the writer.
 from __future__ import annotations
 
 import os
+import select
 import sqlite3
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -25,7 +26,7 @@ from typing import Any
 
 from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.engine import Dialect, make_url
-from sqlalchemy.exc import DBAPIError
+from sqlalchemy.exc import DBAPIError, DisconnectionError
 from sqlalchemy.orm import Session, sessionmaker
 from sqlalchemy.types import TypeEngine
 
@@ -35,6 +36,7 @@ DEFAULT_DATABASE_URL = f"sqlite:///{DEFAULT_SQLITE_PATH}"
 SQLITE_BUSY_TIMEOUT_MS = 5_000
 _WRITE_OPTION = "contextweb_write"
 _LOCK_WAIT_OPTION = "contextweb_lock_wait_ms"
+_DRIVER_OF_TRANSACTION = "contextweb_driver"
 
 
 def is_sqlite(url: str) -> bool:
@@ -81,19 +83,46 @@ def create_database_engine(
     connections the time-outs above."""
     url = normalise_url(url)
     if not is_sqlite(url):
-        return create_engine(
+        engine = create_engine(
             url,
             pool_size=pool_size,
             max_overflow=pool_size,
-            pool_pre_ping=True,
             connect_args={**POSTGRES_CONNECT_ARGS, "options": POSTGRES_SESSION_OPTIONS},
         )
+        _install_postgres_liveness_check(engine)
+        return engine
     database = make_url(url).database
     if database and database != ":memory:":
         Path(database).parent.mkdir(parents=True, exist_ok=True)
     engine = create_engine(url, pool_size=pool_size, max_overflow=pool_size, connect_args={"check_same_thread": False})
     _install_sqlite_pragmas(engine, sqlite_synchronous, database, sqlite_busy_timeout_ms)
     return engine
+
+
+def _install_postgres_liveness_check(engine: Engine) -> None:
+    """A pooled PostgreSQL connection is checked before each use without a round trip when it can be.
+
+    SQLAlchemy's ``pool_pre_ping`` sends ``SELECT 1`` at every checkout: one more round trip per
+    request (the scene path's cost of it: docs/benchmarks.md). A server that ends a session (a
+    terminated backend, a restart, an idle timeout) sends its error and closes the socket, so an
+    idle pooled connection that is still healthy has nothing to read: only one whose socket is
+    readable, or that psycopg already knows is broken, is pinged (or dropped), and a failed ping
+    makes the pool open a new connection (``DisconnectionError``), as the pre-ping did. A link cut
+    silently (no close reaches the client) is found by the request's first statement instead, within
+    the connection's ``tcp_user_timeout`` (what the pre-ping itself waited for), and answered 503.
+    """
+
+    @event.listens_for(engine, "checkout")
+    def _check_alive(dbapi_connection: Any, _record: Any, _proxy: Any) -> None:
+        if dbapi_connection.closed or dbapi_connection.broken:
+            raise DisconnectionError("the pooled PostgreSQL connection is closed")
+        readable, _, _ = select.select([dbapi_connection.fileno()], [], [], 0)
+        if not readable:
+            return
+        try:
+            engine.dialect.do_ping(dbapi_connection)
+        except Exception as error:  # any failure of the ping means a new connection
+            raise DisconnectionError(f"the pooled PostgreSQL connection failed its ping: {error}") from error
 
 
 def _install_sqlite_pragmas(engine: Engine, synchronous: str, database: str | None, busy_timeout_ms: int) -> None:
@@ -148,12 +177,19 @@ class DriverStatements:
     """
 
     def __init__(self, session: Session) -> None:
-        connection = session.connection()
-        self.dialect = connection.dialect
-        driver = connection.connection.driver_connection
-        # None only once the pool has invalidated the connection, which the session just checked out is not.
-        assert driver is not None
-        self._driver = driver
+        # A scene's transaction makes several of these: the connection is looked up once per transaction.
+        transaction = session.get_transaction()
+        cached = session.info.get(_DRIVER_OF_TRANSACTION)
+        if cached is not None and transaction is not None and cached[0] is transaction and transaction.is_active:
+            _, self.dialect, self._driver = cached
+        else:
+            connection = session.connection()
+            self.dialect = connection.dialect
+            driver = connection.connection.driver_connection
+            # None only once the pool has invalidated the connection, which the session just checked out is not.
+            assert driver is not None
+            self._driver = driver
+            session.info[_DRIVER_OF_TRANSACTION] = (session.get_transaction(), self.dialect, driver)
         self._qmark = self.dialect.paramstyle == "qmark"
 
     def execute(self, statement: str, parameters: Sequence[Any]) -> None:

@@ -101,6 +101,10 @@ class ScalingServer(Server):
     """bench_service's :class:`Server` with ``--workers``; it waits until every worker has started
     (their start-up lines in the log) and knows their process ids."""
 
+    sqlite_synchronous = "FULL"
+    """SQLite's ``synchronous`` for every server of the run (``--sqlite-synchronous``): FULL, the
+    default, makes each scene's commit wait for a WAL fsync under the database's one write lock."""
+
     def __init__(self, database_url: str, log: Path, workers: int = 1) -> None:
         with socket.socket() as probe:
             probe.bind(("127.0.0.1", 0))
@@ -112,7 +116,7 @@ class ScalingServer(Server):
         env |= {
             "CONTEXTWEB_DATABASE_URL": database_url,
             "CONTEXTWEB_PORT": str(self.port),
-            "CONTEXTWEB_SQLITE_SYNCHRONOUS": "FULL",
+            "CONTEXTWEB_SQLITE_SYNCHRONOUS": self.sqlite_synchronous,
         }
         # As `make run` and the container do: `contextweb migrate`, then `contextweb serve`.
         migrate = [sys.executable, "-m", "app.cli", "migrate"]
@@ -211,9 +215,11 @@ def _cpu_seconds(pid: int) -> float:
 
 
 def _postgres_processes(database: str | None) -> dict[str, list[int]]:
-    """The PostgreSQL server's processes on this machine: ``backends`` serving ``database`` (their
-    command line names it: ``postgres: USER DATABASE HOST(PORT) STATE``) and ``shared`` (the WAL
-    writer, checkpointer and the like, without a database)."""
+    """The PostgreSQL server's processes on this machine: ``backends`` serving ``database`` and
+    ``shared`` ones (the WAL writer, checkpointer and the like, without a client), by their command
+    line: ``postgres: [CLUSTER:] USER DATABASE HOST(PORT) STATE`` for a backend (Debian names the
+    cluster, ``15/main:``), ``postgres: [CLUSTER:] NAME`` for a shared process. Other databases'
+    backends are in neither."""
     found: dict[str, list[int]] = {"backends": [], "shared": []}
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
@@ -224,9 +230,13 @@ def _postgres_processes(database: str | None) -> dict[str, list[int]]:
             words = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").split()
         except OSError:
             continue
-        if database is not None and len(words) >= 3 and words[0] == "postgres:" and words[2] == database:
-            found["backends"].append(int(entry.name))
-        elif len(words) < 3 or "(" not in " ".join(words[3:4]):  # no client address: a shared process
+        if words[:1] != ["postgres:"]:
+            continue  # the postmaster (its own command line), which forks and waits
+        words = words[2:] if len(words) > 1 and words[1].endswith(":") else words[1:]
+        if len(words) >= 3 and "(" in words[2]:
+            if words[1] == database:
+                found["backends"].append(int(entry.name))
+        else:
             found["shared"].append(int(entry.name))
     return found
 
@@ -629,7 +639,15 @@ def main() -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer scenes (a smoke run, not a measurement)")
     parser.add_argument("--backends", default="sqlite,postgresql", help="comma-separated: sqlite, postgresql")
+    parser.add_argument(
+        "--sqlite-synchronous",
+        default="FULL",
+        choices=["FULL", "NORMAL"],
+        help="SQLite's durability: FULL (the default, as served) or NORMAL (no fsync at commit: a power loss "
+        "may lose the last acknowledged scenes)",
+    )
     args = parser.parse_args(sys.argv[1:])
+    ScalingServer.sqlite_synchronous = args.sqlite_synchronous
     sizes: ScalingSizes = (
         {
             "throughput": 800,
@@ -650,7 +668,13 @@ def main() -> dict:
         }
     )
     backends = args.backends.split(",")
-    results: dict[str, Any] = {"sizes": sizes, "hyperparameters": SERVING, "goals": GOALS, "cpus": os.cpu_count()}
+    results: dict[str, Any] = {
+        "sizes": sizes,
+        "hyperparameters": SERVING,
+        "goals": GOALS,
+        "cpus": os.cpu_count(),
+        "sqlite_synchronous": args.sqlite_synchronous,
+    }
     results["load_average_before"] = os.getloadavg()
     began = time.perf_counter()
     folder = Path(tempfile.mkdtemp(prefix="contextweb-scaling-"))  # the servers' logs stay there

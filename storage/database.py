@@ -151,8 +151,9 @@ def _install_postgres_liveness_check(engine: Engine) -> None:
     def _check_alive(dbapi_connection: Any, _record: Any, _proxy: Any) -> None:
         if dbapi_connection.closed or dbapi_connection.broken:
             raise DisconnectionError("the pooled PostgreSQL connection is closed")
-        readable, _, _ = select.select([dbapi_connection.fileno()], [], [], 0)
-        if not readable:
+        poller = select.poll()  # not select.select: it refuses descriptors past 1023, and a server has sockets
+        poller.register(dbapi_connection.fileno(), select.POLLIN)
+        if not poller.poll(0):
             return
         try:
             engine.dialect.do_ping(dbapi_connection)

@@ -24,6 +24,7 @@ read it whole anyway; the JSON checks' cost on a typical scene is in docs/benchm
 from __future__ import annotations
 
 import email.message
+import functools
 import json
 from itertools import accumulate
 
@@ -46,6 +47,8 @@ _BRACKET_STEP = tuple(1 if byte in b"[{" else -1 if byte in b"]}" else 0 for byt
 _NUMBER_CHARACTERS = bytes(ord("0") if byte in b"+-.0123456789Ee" else ord(" ") for byte in range(256))
 _TOO_LONG_NUMBER = b"0" * (MAX_NUMBER_LENGTH + 1)
 _UTF8 = frozenset({"utf-8", "utf8"})
+#: Distinct Content-Type headers whose parse is kept (least recently used dropped first).
+CONTENT_TYPES_KEPT = 64
 
 
 def json_body_problem(body: bytes) -> str | None:
@@ -75,18 +78,27 @@ def declared_charset_problem(content_type: str | None) -> str | None:
     """Why a JSON content type is refused: it declares a charset other than UTF-8 (RFC 8259 §8.1)."""
     if not content_type:
         return None
+    return _content_type(content_type)[1]
+
+
+def is_json_content_type(content_type: str) -> bool:
+    """The media types FastAPI parses as JSON (``application/json`` and ``application/*+json``)."""
+    return _content_type(content_type)[0]
+
+
+@functools.lru_cache(maxsize=CONTENT_TYPES_KEPT)
+def _content_type(content_type: str) -> tuple[bool, str | None]:
+    """(JSON?, the charset problem) of one Content-Type header, parsed once: a client sends the same
+    header with every request, and ``email.message`` parsing it twice a request was a visible part
+    of the event loop's time per scene (docs/benchmarks.md)."""
     message = email.message.Message()
     message["content-type"] = content_type
-    charset = message.get_param("charset")
-    if not _is_json(message) or not isinstance(charset, str) or charset.lower() in _UTF8:
-        return None
-    return f"JSON text must be UTF-8, and the Content-Type declares charset={charset}"
-
-
-def _is_json(message: email.message.Message) -> bool:
-    """The media types FastAPI parses as JSON (``application/json`` and ``application/*+json``)."""
     subtype = message.get_content_subtype()
-    return message.get_content_maintype() == "application" and (subtype == "json" or subtype.endswith("+json"))
+    is_json = message.get_content_maintype() == "application" and (subtype == "json" or subtype.endswith("+json"))
+    charset = message.get_param("charset")
+    if not is_json or not isinstance(charset, str) or charset.lower() in _UTF8:
+        return is_json, None
+    return is_json, f"JSON text must be UTF-8, and the Content-Type declares charset={charset}"
 
 
 class _BodyTooLarge(Exception):
@@ -131,12 +143,9 @@ class RequestBodyLimits:
         if body is None:
             await _refuse(RequestTimeout(self.read_timeout_seconds), scope, receive, send, close=True)
             return
-        if body and content_type:
-            message = email.message.Message()
-            message["content-type"] = content_type
-            if _is_json(message) and (problem := json_body_problem(body)):
-                await _refuse(InvalidInput("body", problem), scope, receive, send)
-                return
+        if body and content_type and is_json_content_type(content_type) and (problem := json_body_problem(body)):
+            await _refuse(InvalidInput("body", problem), scope, receive, send)
+            return
         await self.app(scope, _replaying(body, receive), send)
 
     async def _read_body(self, receive: Receive) -> bytes:

@@ -45,7 +45,7 @@ from core.errors import InvalidInputError
 from core.planning import BehaviourEffects, Workspace, learn_effects
 from core.prototypes.prototypes import PrototypeSet
 from core.vocabulary import Vocabulary
-from storage.database import snapshot
+from storage.database import snapshot, write_turn
 from storage.models import HYPERPARAMETERS_VERSION, Model, TrainingObject
 from storage.repositories import feed as feed_repository
 from storage.repositories import incremental_lda as lda_repository
@@ -103,6 +103,8 @@ class ModelWrite:
     """Set by a service whose own statements stored :attr:`version` (a scene's state row)."""
     unchanged: bool = False
     """Set when the write changed nothing (an idempotent replay): no new version, no notification."""
+    notified: bool = False
+    """Set by a service whose own statements sent the change notification (a scene, in its pipeline)."""
 
 
 class ModelWriter:
@@ -160,7 +162,8 @@ class ModelWriter:
     def transaction(self, write_sessions: sessionmaker[Session], registry: ModelRegistry) -> Iterator[ModelWrite]:
         """One write to the model, committed or undone (app/deps.py ``model_write`` documents the order).
 
-        Under the database's lock (the model's state row, or SQLite's write lock), taken first,
+        Under the database's lock (the model's state row, or SQLite's write lock, which this
+        process's writers take turns to wait for: ``storage.database.write_turn``), taken first,
         then this process's lock: the stored version is read; memory that is behind catches up
         from the rows written since; the block runs; the version is bumped and the other processes
         notified; the commit; then the changes that waited for it. If anything fails once memory
@@ -170,7 +173,7 @@ class ModelWriter:
             raise ModelNotFound(self.id)
         holding = False
         try:
-            with unit_of_work(write_sessions) as session:
+            with write_turn(write_sessions), unit_of_work(write_sessions) as session:
                 stored = lda_repository.lock_version(session, self.id)  # the database's lock: wait here
                 self.lock.acquire()
                 holding = True
@@ -189,7 +192,8 @@ class ModelWriter:
                 if not write.unchanged:
                     if not write.version_saved:
                         lda_repository.set_version(session, self.id, write.version)
-                    feed_repository.notify_change(session, self.id)
+                    if not write.notified:
+                        feed_repository.notify_change(session, self.id)
             self._committed(write)
         except BaseException as error:
             if self._changed:

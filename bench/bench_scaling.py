@@ -14,7 +14,14 @@ checks like bench_service's):
   mean of the two, because the machine is shared. For ``--workers 2`` the
   connections each worker accepted are counted from ``/proc`` (which process
   holds each accepted socket). Every answer's status is counted: a refused
-  scene is reported, never retried;
+  scene is reported, never retried. The bodies are encoded as JSON before the
+  clock starts (a robot's encoding is its own CPU, not the server's), and the
+  connections are opened one after the other, as robots coming online do (at
+  once, the first worker to wake accepted them all). Where the 2 cores' time
+  went is read from ``/proc`` around each run: CPU milliseconds per scene of the
+  server processes, of the PostgreSQL backends serving this database (their
+  command line names it), of PostgreSQL's shared processes (WAL writer,
+  checkpointer: other databases' work included) and of the clients;
 - ``catch_up``: two processes A and B (the replicas of (c)) and a third, C.
   B's first ``GET /v1/models/{id}`` after K scenes were posted to A (it catches
   up, ``app.registry.catch_up``) minus the median of ordinary GETs of a current
@@ -49,6 +56,7 @@ from pathlib import Path
 from typing import Any, TypedDict
 
 import httpx
+from sqlalchemy.engine import make_url
 
 from bench import RESULTS
 from bench.bench_service import (
@@ -62,6 +70,7 @@ from bench.bench_service import (
     _summary,
     _trained_model,
     concept_scenes,
+    fsync_ms,
     pipeline_ms,
     training_objects,
 )
@@ -69,6 +78,7 @@ from core.features.extract import recording_features
 from sim.world import World
 
 GOALS = {"ratio": 1.6, "scenes_per_second": 500.0}
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 PREVIOUS_LATENCY_MS = {"sqlite": (2.1, 7.5), "postgresql": (4.1, 8.5)}
 """p50 / p99 of the lean concepts series in the previous session (docs/operations.md)."""
 PREVIOUS_PIPELINE_RATIO = {"sqlite": 5.6, "postgresql": 11.0}
@@ -91,6 +101,10 @@ class ScalingServer(Server):
     """bench_service's :class:`Server` with ``--workers``; it waits until every worker has started
     (their start-up lines in the log) and knows their process ids."""
 
+    sqlite_synchronous = "FULL"
+    """SQLite's ``synchronous`` for every server of the run (``--sqlite-synchronous``): FULL, the
+    default, makes each scene's commit wait for a WAL fsync under the database's one write lock."""
+
     def __init__(self, database_url: str, log: Path, workers: int = 1) -> None:
         with socket.socket() as probe:
             probe.bind(("127.0.0.1", 0))
@@ -102,7 +116,7 @@ class ScalingServer(Server):
         env |= {
             "CONTEXTWEB_DATABASE_URL": database_url,
             "CONTEXTWEB_PORT": str(self.port),
-            "CONTEXTWEB_SQLITE_SYNCHRONOUS": "FULL",
+            "CONTEXTWEB_SQLITE_SYNCHRONOUS": self.sqlite_synchronous,
         }
         # As `make run` and the container do: `contextweb migrate`, then `contextweb serve`.
         migrate = [sys.executable, "-m", "app.cli", "migrate"]
@@ -191,13 +205,84 @@ def _socket_owners(port: int, client_ports: list[int], pids: list[int]) -> dict[
     return owners
 
 
-def _spread(targets: list[tuple[ScalingServer, str]], parts: list[list[dict]]) -> dict[str, Any]:
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of one process so far (0 once it is gone)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS
+
+
+def _postgres_processes(database: str | None) -> dict[str, list[int]]:
+    """The PostgreSQL server's processes on this machine: ``backends`` serving ``database`` and
+    ``shared`` ones (the WAL writer, checkpointer and the like, without a client), by their command
+    line: ``postgres: [CLUSTER:] USER DATABASE HOST(PORT) STATE`` for a backend (Debian names the
+    cluster, ``15/main:``), ``postgres: [CLUSTER:] NAME`` for a shared process. Other databases'
+    backends are in neither."""
+    found: dict[str, list[int]] = {"backends": [], "shared": []}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            if (entry / "comm").read_text().strip() != "postgres":
+                continue
+            words = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").split()
+        except OSError:
+            continue
+        if words[:1] != ["postgres:"]:
+            continue  # the postmaster (its own command line), which forks and waits
+        words = words[2:] if len(words) > 1 and words[1].endswith(":") else words[1:]
+        if len(words) >= 3 and "(" in words[2]:
+            if words[1] == database:
+                found["backends"].append(int(entry.name))
+        else:
+            found["shared"].append(int(entry.name))
+    return found
+
+
+class CpuMeter:
+    """CPU seconds of the processes that share the machine's cores during one run (from /proc)."""
+
+    def __init__(self, servers: list[ScalingServer], database: str | None) -> None:
+        self._servers = servers
+        self._database = database
+        self._start = self._read()
+
+    def _read(self) -> dict[str, dict[int, float]]:
+        pids = {pid for server in self._servers for pid in {server.process.pid, *server.pids()}}
+        groups = {"server": {pid: _cpu_seconds(pid) for pid in pids}}
+        for name, found in _postgres_processes(self._database).items():
+            groups[f"postgres_{name}"] = {pid: _cpu_seconds(pid) for pid in found}
+        return groups
+
+    def per_scene_ms(self, scenes: int, client_seconds: float, elapsed: float) -> dict[str, Any]:
+        """Milliseconds of CPU per scene by group (a process new since the start counts whole), and
+        how many of the cores they kept busy together."""
+        end = self._read()
+        seconds = {
+            group: sum(value - self._start[group].get(pid, 0.0) for pid, value in values.items())
+            for group, values in end.items()
+        }
+        seconds["client"] = client_seconds
+        figures: dict[str, Any] = {group: round(1000 * value / max(scenes, 1), 3) for group, value in seconds.items()}
+        figures["total"] = round(sum(figures[group] for group in seconds), 3)
+        figures["cores_busy"] = round(sum(seconds.values()) / elapsed, 2)
+        return figures
+
+
+def _spread(
+    targets: list[tuple[ScalingServer, str]], parts: list[list[dict]], database: str | None = None
+) -> dict[str, Any]:
     """One thread and one keep-alive connection per (server, model id), each posting its part.
 
-    Each connection's first scene is posted before the clock starts (it opens the connection); then,
-    for servers with several workers, which worker holds each connection is read from /proc."""
+    Each connection's first scene is posted before the clock starts (it opens the connection), one
+    connection after the other; then, for servers with several workers, which worker holds each
+    connection is read from /proc. ``database``: the PostgreSQL database whose backends' CPU counts."""
     count = len(targets)
     connected, go = threading.Barrier(count + 1), threading.Barrier(count + 1)
+    opened = [threading.Event() for _ in range(count + 1)]
+    opened[0].set()
     client_ports: list[int] = [0] * count
     statuses: collections.Counter[Any] = collections.Counter()
     latencies: list[float] = []
@@ -210,10 +295,12 @@ def _spread(targets: list[tuple[ScalingServer, str]], parts: list[list[dict]]) -
         own_latencies: list[float] = []
         own_statuses: collections.Counter[Any] = collections.Counter()
 
-        def post(body: dict) -> None:
+        bodies = [json.dumps(body).encode() for body in parts[index]]
+
+        def post(body: bytes) -> None:
             start = time.perf_counter()
             try:
-                connection.request("POST", path, body=json.dumps(body).encode(), headers=headers)
+                connection.request("POST", path, body=body, headers=headers)
                 response = connection.getresponse()
                 answer = response.read()
                 status: Any = response.status
@@ -226,13 +313,17 @@ def _spread(targets: list[tuple[ScalingServer, str]], parts: list[list[dict]]) -
             own_statuses[status] += 1
 
         try:
-            post(parts[index][0])
+            opened[index].wait()
+            try:
+                post(bodies[0])
+            finally:
+                opened[index + 1].set()
             client_ports[index] = connection.sock.getsockname()[1] if connection.sock else 0
             connected.wait()
             own_latencies.clear()  # the untimed first scene is neither timed nor counted (a refusal would be)
             own_statuses.pop(201, None)
             go.wait()
-            for body in parts[index][1:]:
+            for body in bodies[1:]:
                 post(body)
         except threading.BrokenBarrierError:
             pass
@@ -250,6 +341,8 @@ def _spread(targets: list[tuple[ScalingServer, str]], parts: list[list[dict]]) -
     for server in {id(server): server for server, _ in targets}.values():
         if server.workers > 1:
             owners[server.url] = _socket_owners(server.port, client_ports, server.pids())
+    servers = list({id(server): server for server, _ in targets}.values())
+    meter = CpuMeter(servers, database)
     cpu = os.times()
     go.wait()
     start = time.perf_counter()
@@ -257,6 +350,7 @@ def _spread(targets: list[tuple[ScalingServer, str]], parts: list[list[dict]]) -
         thread.join()
     elapsed = time.perf_counter() - start
     cpu_after = os.times()
+    client_seconds = (cpu_after.user + cpu_after.system) - (cpu.user + cpu.system)
     accepted = statuses.pop(201, 0)
     timed = len(latencies)
     ms = sorted(1000 * value for value in latencies)
@@ -270,8 +364,9 @@ def _spread(targets: list[tuple[ScalingServer, str]], parts: list[list[dict]]) -
             "p99": round(ms[min(timed - 1, int(0.99 * timed))], 2),
             "max": round(ms[-1], 2),
         },
-        # The benchmark's own CPU (JSON encoding, http.client): it shares the machine's 2 cores.
-        "client_cpu_seconds": round((cpu_after.user + cpu_after.system) - (cpu.user + cpu.system), 2),
+        # The benchmark's own CPU (http.client): it shares the machine's 2 cores.
+        "client_cpu_seconds": round(client_seconds, 2),
+        "cpu_ms_per_scene": meter.per_scene_ms(accepted, client_seconds, elapsed),
         "refused": dict(statuses),
     }
     if owners:
@@ -420,8 +515,10 @@ def run_backend(
 
     def measure(name: str, targets: list[tuple[ScalingServer, str]]) -> None:
         phase(name)
-        throughput[name] = figures = _spread(targets, parts)
+        throughput[name] = figures = _spread(targets, parts, database)
         print(f"    {figures['scenes_per_second']:.1f} scenes/s {json.dumps(figures)}", flush=True)
+
+    database = make_url(url).database if backend == "postgresql" else None
 
     scenes = data["concepts"][: sizes["throughput"]]
     parts = [scenes[i::CLIENTS] for i in range(CLIENTS)]
@@ -496,11 +593,15 @@ def _report(backend: str, result: dict[str, Any], pipeline: float) -> None:
             counts = [n for owners in figures["connections_per_worker"].values() for n in owners.values()]
             spread = f"  connections per worker {counts}"
         refused = f"  REFUSED {figures['refused']}" if figures["refused"] else ""
+        cpu = figures["cpu_ms_per_scene"]
         print(
             f"  {name:13s} {figures['scenes_per_second']:7.1f}  x{ratio:.2f}  "
             f"p50 {figures['latency_ms']['median']:.1f} / p99 {figures['latency_ms']['p99']:.1f} / "
-            f"max {figures['latency_ms']['max']:.0f} ms  client CPU {figures['client_cpu_seconds']:.1f} s"
-            f"{spread}{goal}{refused}"
+            f"max {figures['latency_ms']['max']:.0f} ms{spread}{goal}{refused}\n"
+            f"  {'':13s} CPU ms a scene: server {cpu['server']:.2f}, postgres backends {cpu['postgres_backends']:.2f}, "
+            f"postgres shared {cpu['postgres_shared']:.2f}, client {cpu['client']:.2f}; total {cpu['total']:.2f} "
+            f"({cpu['cores_busy']:.2f} of {os.cpu_count()} cores busy; client share "
+            f"{100 * cpu['client'] / max(cpu['total'], 1e-9):.0f} %)"
         )
     catch = result["catch_up"]
     print(
@@ -538,7 +639,15 @@ def main() -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer scenes (a smoke run, not a measurement)")
     parser.add_argument("--backends", default="sqlite,postgresql", help="comma-separated: sqlite, postgresql")
+    parser.add_argument(
+        "--sqlite-synchronous",
+        default="FULL",
+        choices=["FULL", "NORMAL"],
+        help="SQLite's durability: FULL (the default, as served) or NORMAL (no fsync at commit: a power loss "
+        "may lose the last acknowledged scenes)",
+    )
     args = parser.parse_args(sys.argv[1:])
+    ScalingServer.sqlite_synchronous = args.sqlite_synchronous
     sizes: ScalingSizes = (
         {
             "throughput": 800,
@@ -559,7 +668,13 @@ def main() -> dict:
         }
     )
     backends = args.backends.split(",")
-    results: dict[str, Any] = {"sizes": sizes, "hyperparameters": SERVING, "goals": GOALS, "cpus": os.cpu_count()}
+    results: dict[str, Any] = {
+        "sizes": sizes,
+        "hyperparameters": SERVING,
+        "goals": GOALS,
+        "cpus": os.cpu_count(),
+        "sqlite_synchronous": args.sqlite_synchronous,
+    }
     results["load_average_before"] = os.getloadavg()
     began = time.perf_counter()
     folder = Path(tempfile.mkdtemp(prefix="contextweb-scaling-"))  # the servers' logs stay there
@@ -600,6 +715,9 @@ def main() -> dict:
                 results[backend] = {"error": f"{type(error).__name__}: {error}"}
                 continue
             _report(backend, results[backend], results["pipeline_ms"])
+    # SQLite's ceiling: one durable commit (a WAL fsync) per scene under one database-wide write lock.
+    results["fsync_ms"] = round(fsync_ms(folder, 100), 3)
+    print(f"one 4 KiB write + fsync in the SQLite database's folder: {results['fsync_ms']:.2f} ms (median of 100)")
     for path in folder.glob("bench.sqlite3*"):
         path.unlink()
     results["load_average_after"] = os.getloadavg()

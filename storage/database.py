@@ -17,7 +17,10 @@ use deferred transactions: in WAL mode they never wait for the writer.
 from __future__ import annotations
 
 import os
+import select
 import sqlite3
+import threading
+import weakref
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -25,8 +28,9 @@ from typing import Any
 
 from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.engine import Dialect, make_url
-from sqlalchemy.exc import DBAPIError
+from sqlalchemy.exc import DBAPIError, DisconnectionError
 from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.pool import Pool
 from sqlalchemy.types import TypeEngine
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
@@ -35,6 +39,7 @@ DEFAULT_DATABASE_URL = f"sqlite:///{DEFAULT_SQLITE_PATH}"
 SQLITE_BUSY_TIMEOUT_MS = 5_000
 _WRITE_OPTION = "contextweb_write"
 _LOCK_WAIT_OPTION = "contextweb_lock_wait_ms"
+_DRIVER_OF_TRANSACTION = "contextweb_driver"
 
 
 def is_sqlite(url: str) -> bool:
@@ -81,19 +86,79 @@ def create_database_engine(
     connections the time-outs above."""
     url = normalise_url(url)
     if not is_sqlite(url):
-        return create_engine(
+        engine = create_engine(
             url,
             pool_size=pool_size,
             max_overflow=pool_size,
-            pool_pre_ping=True,
             connect_args={**POSTGRES_CONNECT_ARGS, "options": POSTGRES_SESSION_OPTIONS},
         )
+        _install_postgres_liveness_check(engine)
+        return engine
     database = make_url(url).database
     if database and database != ":memory:":
         Path(database).parent.mkdir(parents=True, exist_ok=True)
     engine = create_engine(url, pool_size=pool_size, max_overflow=pool_size, connect_args={"check_same_thread": False})
     _install_sqlite_pragmas(engine, sqlite_synchronous, database, sqlite_busy_timeout_ms)
+    _WRITE_TURNS[engine.pool] = (threading.Lock(), sqlite_busy_timeout_ms / 1000)
     return engine
+
+
+#: Per SQLite engine (its pool, which its option engines share): the lock this process's write
+#: transactions take turns on (:func:`write_turn`), and how long one waits for it (the busy timeout).
+_WRITE_TURNS: weakref.WeakKeyDictionary[Pool, tuple[threading.Lock, float]] = weakref.WeakKeyDictionary()
+
+
+@contextmanager
+def write_turn(sessions: sessionmaker[Session]) -> Iterator[None]:
+    """This process's turn to run a write transaction on the database of ``sessions``.
+
+    SQLite: one at a time per process, handed from one thread to the next by a mutex. Without it
+    every waiting thread polls the database's one write lock in SQLite's busy handler, which sleeps
+    up to 100 ms between tries, so the lock sat free while its waiters slept (8 clients writing to
+    8 models: tails of seconds and fewer scenes a second; docs/benchmarks.md). Writers of other
+    processes still meet at the database's lock, as before. The wait is bounded by the busy timeout,
+    then it fails as a ``BEGIN IMMEDIATE`` would (SQLITE_BUSY: a 503 ``storage_busy``). PostgreSQL:
+    nothing (its writers wait on row locks, without polling)."""
+    turn = _WRITE_TURNS.get(sessions.kw["bind"].pool)
+    if turn is None:
+        yield
+        return
+    lock, timeout_seconds = turn
+    if not lock.acquire(timeout=timeout_seconds):
+        busy = sqlite3.OperationalError("database is locked (this process's other writes held it)")
+        busy.sqlite_errorcode = sqlite3.SQLITE_BUSY
+        raise DBAPIError.instance("BEGIN IMMEDIATE", (), busy, sqlite3.Error)
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+def _install_postgres_liveness_check(engine: Engine) -> None:
+    """A pooled PostgreSQL connection is checked before each use without a round trip when it can be.
+
+    SQLAlchemy's ``pool_pre_ping`` sends ``SELECT 1`` at every checkout: one more round trip per
+    request (the scene path's cost of it: docs/benchmarks.md). A server that ends a session (a
+    terminated backend, a restart, an idle timeout) sends its error and closes the socket, so an
+    idle pooled connection that is still healthy has nothing to read: only one whose socket is
+    readable, or that psycopg already knows is broken, is pinged (or dropped), and a failed ping
+    makes the pool open a new connection (``DisconnectionError``), as the pre-ping did. A link cut
+    silently (no close reaches the client) is found by the request's first statement instead, within
+    the connection's ``tcp_user_timeout`` (what the pre-ping itself waited for), and answered 503.
+    """
+
+    @event.listens_for(engine, "checkout")
+    def _check_alive(dbapi_connection: Any, _record: Any, _proxy: Any) -> None:
+        if dbapi_connection.closed or dbapi_connection.broken:
+            raise DisconnectionError("the pooled PostgreSQL connection is closed")
+        poller = select.poll()  # not select.select: it refuses descriptors past 1023, and a server has sockets
+        poller.register(dbapi_connection.fileno(), select.POLLIN)
+        if not poller.poll(0):
+            return
+        try:
+            engine.dialect.do_ping(dbapi_connection)
+        except Exception as error:  # any failure of the ping means a new connection
+            raise DisconnectionError(f"the pooled PostgreSQL connection failed its ping: {error}") from error
 
 
 def _install_sqlite_pragmas(engine: Engine, synchronous: str, database: str | None, busy_timeout_ms: int) -> None:
@@ -148,12 +213,19 @@ class DriverStatements:
     """
 
     def __init__(self, session: Session) -> None:
-        connection = session.connection()
-        self.dialect = connection.dialect
-        driver = connection.connection.driver_connection
-        # None only once the pool has invalidated the connection, which the session just checked out is not.
-        assert driver is not None
-        self._driver = driver
+        # A scene's transaction makes several of these: the connection is looked up once per transaction.
+        transaction = session.get_transaction()
+        cached = session.info.get(_DRIVER_OF_TRANSACTION)
+        if cached is not None and transaction is not None and cached[0] is transaction and transaction.is_active:
+            _, self.dialect, self._driver = cached
+        else:
+            connection = session.connection()
+            self.dialect = connection.dialect
+            driver = connection.connection.driver_connection
+            # None only once the pool has invalidated the connection, which the session just checked out is not.
+            assert driver is not None
+            self._driver = driver
+            session.info[_DRIVER_OF_TRANSACTION] = (session.get_transaction(), self.dialect, driver)
         self._qmark = self.dialect.paramstyle == "qmark"
 
     def execute(self, statement: str, parameters: Sequence[Any]) -> None:

@@ -85,7 +85,8 @@ def _learn_scene(
         answer, replayed = scene_service.learn_scene(
             write.session, model, write.version, prepared, idempotency_key, state.metrics
         )
-        write.version_saved, write.unchanged = not replayed, replayed
+        write.version_saved = write.notified = not replayed
+        write.unchanged = replayed
     return answer, replayed
 
 

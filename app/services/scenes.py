@@ -48,6 +48,7 @@ from core.context.incremental import SceneUpdate
 from core.errors import InvalidInputError
 from storage.database import pipelined
 from storage.repositories import contexts as context_repository
+from storage.repositories import feed as feed_repository
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import scenes as scene_repository
 from storage.repositories.incremental_lda import SceneChanges, StoredCheckpoint
@@ -101,8 +102,9 @@ def learn_scene(
 ) -> tuple[str, bool]:
     """Learn the prepared scene online as the model's write ``version``; returns the answer (the
     ``SceneRead`` JSON, stored byte for byte) and whether it is a stored one (idempotent replay).
-    A learned scene stores ``version`` in its state row (the caller need not); ``metrics`` count
-    the online update once it is committed."""
+    A learned scene stores ``version`` in its state row and sends the change notification in the
+    same round trip as its rows (the caller need not do either); ``metrics`` count the online
+    update once it is committed."""
     body, request_hash = prepared.body, prepared.request_hash
     if idempotency_key is not None:
         stored = scene_repository.find_by_idempotency_key(session, model.id, idempotency_key)
@@ -251,10 +253,11 @@ def _save(
     request_hash: bytes,
 ) -> None:
     first_word = len(model.word_kinds) - len(update.vocabulary_additions)
-    with pipelined(session):  # PostgreSQL: the scene's statements in one round trip
+    with pipelined(session):  # PostgreSQL: the scene's statements in one round trip, its notification too
         _save_rows(
             session, model, update, first_token, first_word, version, answer, answer_json, idempotency_key, request_hash
         )
+        feed_repository.notify_change(session, model.id)
 
 
 def _save_rows(

@@ -5,6 +5,7 @@ from __future__ import annotations
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
+from storage.database import DriverStatements
 from storage.models import ContextLabel, utc_now
 
 
@@ -15,10 +16,13 @@ def context_labels(session: Session, model_id: str) -> dict[int, str]:
 
 
 def context_label(session: Session, model_id: str, context: int) -> str | None:
-    """The label of one context, or None (one primary-key read)."""
-    return session.scalar(
-        select(ContextLabel.label).where(ContextLabel.model_id == model_id, ContextLabel.context == context)
-    )
+    """The label of one context, or None (one primary-key read, straight through the driver: it runs
+    in every learned scene's transaction, where the ORM's statement machinery cost more than the read)."""
+    row = DriverStatements(session).fetchone(_SELECT_LABEL, (model_id, context))
+    return None if row is None else row[0]
+
+
+_SELECT_LABEL = "SELECT label FROM context_label WHERE model_id = ? AND context = ?"
 
 
 def set_context_label(session: Session, model_id: str, context: int, label: str | None) -> None:

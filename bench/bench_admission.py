@@ -43,6 +43,7 @@ import numpy as np
 from app.settings import Settings
 from bench import RESULTS
 from bench.bench_service import (
+    BIRTH_CHECK_INTERVAL,
     SERVING,
     LeanClient,
     Server,
@@ -167,7 +168,7 @@ def run(folder: Path, sizes: dict[str, Any], *, profile: bool = False) -> dict[s
     recording = next(iter(world.recordings(seed=0).values()))
     limit = Settings().max_body_bytes
     heavy = maximum_raw_scene(recording, limit)
-    warmup = concept_scenes(world, SERVING["birth_check_interval"], seed=1)
+    warmup = concept_scenes(world, BIRTH_CHECK_INTERVAL, seed=1)
     scenes = concept_scenes(world, sizes["quiet"], seed=2)
     server = Server(f"sqlite:///{folder / 'admission.sqlite3'}", folder / "server.log")
     try:

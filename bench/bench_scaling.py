@@ -60,6 +60,7 @@ from sqlalchemy.engine import make_url
 
 from bench import RESULTS
 from bench.bench_service import (
+    BIRTH_CHECK_INTERVAL,
     CLIENTS,
     PROJECT,
     SERVING,
@@ -698,7 +699,7 @@ def main() -> dict:
         train = training_objects(world, features)
         data = {
             "train": train,
-            "warmup": concept_scenes(world, SERVING["birth_check_interval"], seed=1),
+            "warmup": concept_scenes(world, BIRTH_CHECK_INTERVAL, seed=1),
             "concepts": concept_scenes(
                 world, max(*sizes["behind_big"].values(), sizes["latency"], sizes["throughput"]), seed=2
             ),

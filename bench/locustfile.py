@@ -104,7 +104,7 @@ if LEVEL not in ("concepts", "features"):
 
 #: The service's own serving setting (bench/bench_service.py's ``SERVING``): growth checks every
 #: 200 scenes instead of every 25, as a deployment that learns for long would set.
-HYPERPARAMETERS = {"birth_check_interval": 200}
+HYPERPARAMETERS: dict[str, Any] = {"k_rule": {"name": "scenes", "birth_check_interval": 200}}
 
 #: Three contexts of the paper's vocabulary, as in tests/conftest.py's ``CONTEXT_CONCEPTS``; the
 #: nouns and verbs also drive the feature-level objects.

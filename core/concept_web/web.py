@@ -223,6 +223,11 @@ def _pass_settings(
 ) -> tuple[np.ndarray, float, np.ndarray]:
     """Validated (damping (2,), tolerance, max_iterations (2,)) of the sum- and max-product passes
     (read-only arrays), memoised: a caller settles with the same few settings again and again."""
+    if sum_product is None and max_product is None:  # the common case, without building pairs
+        try:
+            return _memoised_pass_settings(damping, tolerance, max_iterations, None, None, None, None)
+        except TypeError:  # not hashable: validated (and refused) below, uncached
+            return _validated_pass_settings(damping, tolerance, max_iterations, None, None)
     try:
         own = [(None, None) if pair is None else tuple(pair) for pair in (sum_product, max_product)]
         if any(len(pair) != 2 for pair in own):

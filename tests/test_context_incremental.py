@@ -173,6 +173,8 @@ def test_inference_leaves_the_model_unchanged_and_is_seeded() -> None:
     assert np.array_equal(before.assignments, after.assignments) and before.rng_state == after.rng_state
     assert posterior.shape == (3,) and posterior.max() > 0.9
     assert np.allclose(model.infer_scene(["unheard_of"]), 1 / 3)
+    # A concept the model never met carries no evidence: among known ones it changes nothing.
+    assert np.array_equal(model.infer_scene([*scene[:3], "unheard_of", *scene[3:]], seed=3), posterior)
     assert np.array_equal(model.context_posterior(scene, seed=3), posterior)
 
 

@@ -235,7 +235,9 @@ def _into_binary(graph, sends, product, damping, tolerance, max_product, message
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _from_binary(graph, sends, product, damping, tolerance, max_product, messages, updated, old_0, old_1) -> bool:
+def _from_binary(
+    graph, sends, product, damping, tolerance, max_product, messages, updated, old_0, old_1, computed
+) -> bool:
     """The messages from a binary variable into one of another size (:func:`propagate`'s general
     message, bit for bit); the reverse message is read from the flat arrays."""
     cardinalities, sources, targets, factor_start, factors, plan = (
@@ -257,21 +259,19 @@ def _from_binary(graph, sends, product, damping, tolerance, max_product, message
         n_target, start = np.uint64(cardinalities[np.uint64(targets[sent])]), np.uint64(factor_start[sent])
         cavity_0 = product[source, 0] / old_0[back_slot]
         cavity_1 = product[source, 1] / old_1[back_slot]
+        # The states' values apart from their sum, so that the compiler vectorises over the states.
+        for b in range(n_target):
+            if max_product:
+                computed[b] = max(max(0.0, cavity_0 * factors[start + b]), cavity_1 * factors[start + n_target + b])
+            else:
+                computed[b] = (0.0 + cavity_0 * factors[start + b]) + cavity_1 * factors[start + n_target + b]
         total = 0.0
         for b in range(n_target):
-            value = 0.0
-            if max_product:
-                value = max(value, cavity_0 * factors[start + b])
-                value = max(value, cavity_1 * factors[start + n_target + b])
-            else:
-                value += cavity_0 * factors[start + b]
-                value += cavity_1 * factors[start + n_target + b]
-            updated[sent, b] = value
-            total += value
+            total += computed[b]
         scale = (1.0 - damping) / total
         for b in range(n_target):
-            fresh = scale * updated[sent, b] + damping * messages[sent, b]
-            moved |= not (abs(fresh - messages[sent, b]) < tolerance)
+            fresh = scale * computed[b] + damping * messages[sent, b]
+            moved |= ~(abs(fresh - messages[sent, b]) < tolerance)
             updated[sent, b] = fresh
     return moved
 
@@ -388,7 +388,9 @@ def propagate(
         moved |= _into_binary(
             graph, sends, product, damping, tolerance, max_product, messages, old_0, old_1, new_0, new_1
         )
-        moved |= _from_binary(graph, sends, product, damping, tolerance, max_product, messages, updated, old_0, old_1)
+        moved |= _from_binary(
+            graph, sends, product, damping, tolerance, max_product, messages, updated, old_0, old_1, computed
+        )
         moved |= _general_messages(
             graph, sends, product, damping, tolerance, max_product, messages, updated, cavity, computed
         )

@@ -134,8 +134,8 @@ class _MessageGraph:
         )
 
     @property
-    def arrays(self) -> tuple[np.ndarray, ...]:
-        """The ``graph`` tuple the kernels read."""
+    def arrays(self) -> tuple[np.ndarray | tuple[np.ndarray, ...], ...]:
+        """The ``graph`` tuple the kernels read (its last item the ``plan`` tuple)."""
         return (
             self.cardinalities,
             self.sources,
@@ -192,11 +192,11 @@ def _binary_plan(
     in_degree = np.bincount(targets, minlength=len(cardinalities))
     n_groups = -(-len(binary_variables) // 4)
     max_degree = int(in_degree[binary_variables].max(initial=0))
-    binary_slots = np.full((n_groups * 4, max_degree), len(flat_directed))
+    slots_by_variable = np.full((n_groups * 4, max_degree), len(flat_directed))
     for b, variable in enumerate(binary_variables):
         entering = incoming[targets[incoming] == variable]
-        binary_slots[b, : len(entering)] = flat_slot[entering]
-    binary_slots = binary_slots.reshape(n_groups, 4, max_degree).transpose(0, 2, 1)
+        slots_by_variable[b, : len(entering)] = flat_slot[entering]
+    binary_slots = slots_by_variable.reshape(n_groups, 4, max_degree).transpose(0, 2, 1)
     plan = (
         pair_variables,
         binary_index[pair_variables],

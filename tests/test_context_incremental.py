@@ -16,6 +16,7 @@ from core.context import (
     SamplerSettings,
     SceneUpdate,
 )
+from core.context import _gibbs_kernels as gibbs_kernels
 from core.errors import InvalidInputError
 from experiments.baselines.likelihood_rule import likelihood_model
 from sim.world import WorldConfig, generate_scenes
@@ -114,6 +115,32 @@ def test_scene_updates_replay_the_model_exactly() -> None:
     for (context, concept), count in n_kw.items():
         stored[context, concept] = count
     assert np.array_equal(stored, state.n_kw)
+
+
+def test_changed_counts_summed_densely_are_the_sorted_keys_rows(monkeypatch: pytest.MonkeyPatch) -> None:
+    """scene_changes sums a small vocabulary's count changes in a dense table instead of sorting
+    its keys: the rows (context, concept, count), their order by concept then context included,
+    are those of the sorting path (the kernel's plain-Python version, forced onto it)."""
+    compiled = gibbs_kernels.scene_changes
+    compared = []
+
+    def both_paths(*arguments: object) -> tuple[np.ndarray, ...]:
+        dense = compiled(*arguments)
+        with monkeypatch.context() as patch:
+            patch.setattr(gibbs_kernels, "_DENSE_KEYS_PER_KEY", 0)
+            sorted_keys = compiled.py_func(*arguments)
+        for got, expected in zip(dense, sorted_keys, strict=True):
+            assert np.array_equal(got, expected)
+        rows = dense[2]
+        assert np.all(np.diff(rows[:, 1] * 1_000 + rows[:, 0]) > 0)
+        n_wk, k_capacity = arguments[6], arguments[10]
+        fewest_keys = len(dense[0]) + len(dense[3])  # a key per reassigned token and per scene token at least
+        compared.append(n_wk.shape[0] * k_capacity <= 4 * fewest_keys)  # type: ignore[attr-defined, operator]
+        return dense
+
+    monkeypatch.setattr(gibbs_kernels, "scene_changes", both_paths)
+    _learn_online(IncrementalLDA(seed=3, **ONLINE), _paper_scenes(25, 3))
+    assert len(compared) == 25 and any(compared)  # the dense table was used
 
 
 def test_online_update_touches_a_bounded_number_of_earlier_tokens() -> None:

@@ -552,6 +552,11 @@ def sample_new_scene(
     return previous
 
 
+#: :func:`scene_changes` sums net count changes in a dense table when the key space (concepts ×
+#: context capacity) is at most this many times the number of keys, and sorts the keys otherwise.
+_DENSE_KEYS_PER_KEY = 4
+
+
 @numba.njit(cache=True, nogil=True)
 def scene_changes(
     touched: np.ndarray,
@@ -627,22 +632,37 @@ def scene_changes(
     for i in range(start, stop):
         keys[n_keys] = 2 * (np.int64(words[i]) * k_capacity + z[i]) + 1
         n_keys += 1
-    keys = np.sort(keys[:n_keys])
     rows = np.empty((n_keys, 3), dtype=np.int64)
     n_rows = 0
-    j = 0
-    while j < n_keys:
-        key = keys[j] // 2
-        net = 0
-        while j < n_keys and keys[j] // 2 == key:
-            net += 1 if keys[j] % 2 else -1
-            j += 1
-        if net != 0:
-            concept, context = key // k_capacity, key % k_capacity
-            rows[n_rows, 0] = context
-            rows[n_rows, 1] = concept
-            rows[n_rows, 2] = n_wk[concept, context]
-            n_rows += 1
+    key_space = np.int64(n_wk.shape[0]) * k_capacity
+    if key_space <= _DENSE_KEYS_PER_KEY * n_keys:
+        # A small key space (a vocabulary of tens of concepts): net changes summed in a dense
+        # table and read back in key order, which is the sorted order without the sort.
+        net_by_key = np.zeros(key_space, dtype=np.int64)
+        for j in range(n_keys):
+            net_by_key[keys[j] // 2] += 1 if keys[j] % 2 else -1
+        for key in range(key_space):
+            if net_by_key[key] != 0:
+                concept, context = key // k_capacity, key % k_capacity
+                rows[n_rows, 0] = context
+                rows[n_rows, 1] = concept
+                rows[n_rows, 2] = n_wk[concept, context]
+                n_rows += 1
+    else:
+        keys = np.sort(keys[:n_keys])
+        j = 0
+        while j < n_keys:
+            key = keys[j] // 2
+            net = 0
+            while j < n_keys and keys[j] // 2 == key:
+                net += 1 if keys[j] % 2 else -1
+                j += 1
+            if net != 0:
+                concept, context = key // k_capacity, key % k_capacity
+                rows[n_rows, 0] = context
+                rows[n_rows, 1] = concept
+                rows[n_rows, 2] = n_wk[concept, context]
+                n_rows += 1
     assignments = z[start:stop].copy()
     theta = np.empty(n_contexts)
     denominator = (stop - start) + n_contexts * alpha

@@ -193,9 +193,11 @@ def _binary_plan(
     n_groups = -(-len(binary_variables) // 4)
     max_degree = int(in_degree[binary_variables].max(initial=0))
     slots_by_variable = np.full((n_groups * 4, max_degree), len(flat_directed))
-    for b, variable in enumerate(binary_variables):
-        entering = incoming[targets[incoming] == variable]
-        slots_by_variable[b, : len(entering)] = flat_slot[entering]
+    # Each message's rank among those entering its target, in CSR (stable) order.
+    entering_target = targets[incoming]
+    rank = np.arange(len(incoming)) - np.concatenate([[0], np.cumsum(in_degree)])[entering_target]
+    into = binary[entering_target]
+    slots_by_variable[binary_index[entering_target[into]], rank[into]] = flat_slot[incoming[into]]
     binary_slots = slots_by_variable.reshape(n_groups, 4, max_degree).transpose(0, 2, 1)
     plan = (
         pair_variables,

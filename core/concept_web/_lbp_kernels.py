@@ -397,8 +397,10 @@ def propagate(
         messages, updated = updated, messages
         old_0, new_0, old_1, new_1 = new_0, old_0, new_1, old_1
         converged = not moved
-    if iterations % 2 == 1:
-        start_messages[:] = messages
+    if iterations % 2 == 1:  # the last messages into variables that are not binary are in ``updated``
+        for rows in (plan[8], plan[9]):
+            for j in range(rows.shape[0]):
+                start_messages[rows[j]] = messages[rows[j]]
     for slot in range(flat_directed.shape[0]):
         start_messages[flat_directed[slot], 0] = old_0[slot]
         start_messages[flat_directed[slot], 1] = old_1[slot]

@@ -117,10 +117,11 @@ def test_scene_updates_replay_the_model_exactly() -> None:
     assert np.array_equal(stored, state.n_kw)
 
 
-def test_changed_counts_summed_densely_are_the_sorted_keys_rows(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_scene_changes_shortcuts_give_the_general_paths_result(monkeypatch: pytest.MonkeyPatch) -> None:
     """scene_changes sums a small vocabulary's count changes in a dense table instead of sorting
-    its keys: the rows (context, concept, count), their order by concept then context included,
-    are those of the sorting path (the kernel's plain-Python version, forced onto it)."""
+    its keys, and sorts an update's few hundred touched entries at once instead of only the
+    changed tokens: everything it returns, the rows' order by concept then context included, is
+    what the general paths give (the kernel's plain-Python version, forced onto them)."""
     compiled = gibbs_kernels.scene_changes
     compared = []
 
@@ -128,6 +129,7 @@ def test_changed_counts_summed_densely_are_the_sorted_keys_rows(monkeypatch: pyt
         dense = compiled(*arguments)
         with monkeypatch.context() as patch:
             patch.setattr(gibbs_kernels, "_DENSE_KEYS_PER_KEY", 0)
+            patch.setattr(gibbs_kernels, "_SORT_EVERY_ENTRY_BELOW", 0)
             sorted_keys = compiled.py_func(*arguments)
         for got, expected in zip(dense, sorted_keys, strict=True):
             assert np.array_equal(got, expected)

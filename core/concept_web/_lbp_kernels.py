@@ -355,8 +355,9 @@ def propagate(
     one directed message at a time by :func:`_into_binary`, :func:`_from_binary` and
     :func:`_general_messages`. Each message's arithmetic, and the order of every sum and
     product, is that of the one-message-at-a-time loop this replaced, so the results are
-    bit for bit the same (tests/test_concept_web_passes.py pins them); only the order in
-    which independent messages are computed changed, which the synchronous schedule allows.
+    bit for bit the same (tests/test_concept_web_kernel.py checks them against a plain copy
+    of that loop); only the order in which independent messages are computed changed, which
+    the synchronous schedule allows.
     """
     cardinalities, sources, targets, plan = graph[0], graph[1], graph[2], graph[7]
     updated, product, cavity, computed, flat, binary_product, cavities = work

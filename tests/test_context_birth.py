@@ -6,10 +6,13 @@ from __future__ import annotations
 import math
 import statistics
 
+import numpy as np
 import pytest
 
 from bench.bench_context_birth import SCENARIOS, birth_run, steady_run
 from core.context import IncrementalLDA
+from core.context.lda import LDAState
+from sim.world import WorldConfig, generate_scenes
 
 SEEDS = range(100, 105)
 
@@ -56,3 +59,33 @@ def test_novelty_is_zero_for_a_repeated_scene_and_large_for_unseen_concepts() ->
     before = (state.n_wk.copy(), state.n_k.copy())
     state.scene_novelty(model._ids(["hammer", "nail"]), state.n_documents - 10, 1.0)
     assert (state.n_wk == before[0]).all() and (state.n_k == before[1]).all()
+
+
+def plain_novelty(state: LDAState, word_ids: np.ndarray, first_doc: int, strength: float) -> float:
+    """scene_novelty's formula in numpy: the window's tokens taken off every context's counts."""
+    n_wk, n_k, vocab_size = state.n_wk.astype(float), state.n_k.astype(float), state.vocab_size
+    start = state.doc_offsets[first_doc]
+    held_wk, held_k = n_wk.copy(), n_k.copy()
+    np.subtract.at(held_wk, (state.words[start:], state.assignments[start:]), 1.0)
+    np.subtract.at(held_k, state.assignments[start:], 1.0)
+    beta = strength * vocab_size / (n_k.sum() + vocab_size * state.xi) * (n_wk[word_ids].sum(axis=1) + state.xi)
+    earlier = np.array([np.sum(word_ids[:j] == w) for j, w in enumerate(word_ids)])
+    steps = np.arange(len(word_ids))
+
+    def log_fit(counts: np.ndarray, held: float) -> float:
+        return float(np.sum(np.log((counts + beta + earlier) / (held + strength * vocab_size + steps))))
+
+    best = max(log_fit(held_wk[word_ids, k], held_k[k]) for k in range(state.n_contexts))
+    return log_fit(np.zeros(len(word_ids)), 0.0) - best
+
+
+def test_novelty_takes_the_window_off_the_contexts() -> None:
+    model = IncrementalLDA(seed=1)
+    for scene in generate_scenes(WorldConfig.paper(), 40, 5):
+        model.learn_scene(scene.tokens())
+    state = model.lda_state
+    for scene in generate_scenes(WorldConfig.paper(), 5, 6):
+        word_ids = model._ids(scene.tokens())
+        for first_doc in (state.n_documents, state.n_documents - 3, state.n_documents - 20):
+            expected = plain_novelty(state, word_ids, first_doc, 1.0)
+            assert state.scene_novelty(word_ids, first_doc, 1.0) == pytest.approx(expected, rel=1e-9, abs=1e-9)

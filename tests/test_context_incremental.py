@@ -16,6 +16,7 @@ from core.context import (
     SamplerSettings,
     SceneUpdate,
 )
+from core.context import _gibbs_kernels as gibbs_kernels
 from core.errors import InvalidInputError
 from experiments.baselines.likelihood_rule import likelihood_model
 from sim.world import WorldConfig, generate_scenes
@@ -116,6 +117,34 @@ def test_scene_updates_replay_the_model_exactly() -> None:
     assert np.array_equal(stored, state.n_kw)
 
 
+def test_scene_changes_shortcuts_give_the_general_paths_result(monkeypatch: pytest.MonkeyPatch) -> None:
+    """scene_changes sums a small vocabulary's count changes in a dense table instead of sorting
+    its keys, and sorts an update's few hundred touched entries at once instead of only the
+    changed tokens: everything it returns, the rows' order by concept then context included, is
+    what the general paths give (the kernel's plain-Python version, forced onto them)."""
+    compiled = gibbs_kernels.scene_changes
+    compared = []
+
+    def both_paths(*arguments: object) -> tuple[np.ndarray, ...]:
+        dense = compiled(*arguments)
+        with monkeypatch.context() as patch:
+            patch.setattr(gibbs_kernels, "_DENSE_KEYS_PER_KEY", 0)
+            patch.setattr(gibbs_kernels, "_SORT_EVERY_ENTRY_BELOW", 0)
+            sorted_keys = compiled.py_func(*arguments)
+        for got, expected in zip(dense, sorted_keys, strict=True):
+            assert np.array_equal(got, expected)
+        rows = dense[2]
+        assert np.all(np.diff(rows[:, 1] * 1_000 + rows[:, 0]) > 0)
+        n_wk, k_capacity = arguments[6], arguments[10]
+        fewest_keys = len(dense[0]) + len(dense[3])  # a key per reassigned token and per scene token at least
+        compared.append(n_wk.shape[0] * k_capacity <= 4 * fewest_keys)  # type: ignore[attr-defined, operator]
+        return dense
+
+    monkeypatch.setattr(gibbs_kernels, "scene_changes", both_paths)
+    _learn_online(IncrementalLDA(seed=3, **ONLINE), _paper_scenes(25, 3))
+    assert len(compared) == 25 and any(compared)  # the dense table was used
+
+
 def test_online_update_touches_a_bounded_number_of_earlier_tokens() -> None:
     model = IncrementalLDA(seed=0, scene_sweeps=3, rejuvenation_tokens=16, **ONLINE)
     for update in _learn_online(model, _paper_scenes(80, 2)):
@@ -173,6 +202,8 @@ def test_inference_leaves_the_model_unchanged_and_is_seeded() -> None:
     assert np.array_equal(before.assignments, after.assignments) and before.rng_state == after.rng_state
     assert posterior.shape == (3,) and posterior.max() > 0.9
     assert np.allclose(model.infer_scene(["unheard_of"]), 1 / 3)
+    # A concept the model never met carries no evidence: among known ones it changes nothing.
+    assert np.array_equal(model.infer_scene([*scene[:3], "unheard_of", *scene[3:]], seed=3), posterior)
     assert np.array_equal(model.context_posterior(scene, seed=3), posterior)
 
 

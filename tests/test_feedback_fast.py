@@ -195,3 +195,14 @@ def test_context_concepts_are_the_plain_computation_bit_for_bit(world, context_m
         np.testing.assert_array_equal(table.given_context, given)
         np.testing.assert_array_equal(table.informed, informed)
     assert not context_concepts(models[3], vocabulary).informed[vocabulary.index("soft")]
+    # The table is memoised on the counts it reads: a model that learns a scene is asked afresh.
+    learner = models[2]
+    before = context_concepts(learner, vocabulary).given_context
+    for scene in world.scenes(3, seed=4, objects=world.train_objects):
+        learner.learn_scene(scene.tokens(with_verbs=True))
+        table = context_concepts(learner, vocabulary)
+        given, informed = plain_context_concepts(learner, vocabulary)
+        np.testing.assert_array_equal(table.given_context, given)
+        np.testing.assert_array_equal(table.informed, informed)
+    assert not np.array_equal(before, table.given_context)
+    assert not table.given_context.flags.writeable

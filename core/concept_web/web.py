@@ -109,6 +109,8 @@ class _MessageGraph:
     factors: np.ndarray
     incoming_start: np.ndarray
     incoming: np.ndarray
+    plan: tuple[np.ndarray, ...]
+    """Where the binary part of the kernels finds its messages (``_binary_plan``)."""
 
     @classmethod
     def build(cls, cardinalities: np.ndarray, variable_edges: np.ndarray, pairwise: np.ndarray) -> _MessageGraph:
@@ -128,11 +130,12 @@ class _MessageGraph:
                 np.int64
             ),
             incoming=np.argsort(targets, kind="stable").astype(np.int64),
+            plan=_binary_plan(cardinalities.astype(np.int64), variable_edges, pairwise, sources, targets),
         )
 
     @property
-    def arrays(self) -> tuple[np.ndarray, ...]:
-        """The ``graph`` tuple the kernels read."""
+    def arrays(self) -> tuple[np.ndarray | tuple[np.ndarray, ...], ...]:
+        """The ``graph`` tuple the kernels read (its last item the ``plan`` tuple)."""
         return (
             self.cardinalities,
             self.sources,
@@ -141,7 +144,76 @@ class _MessageGraph:
             self.factors,
             self.incoming_start,
             self.incoming,
+            self.plan,
         )
+
+
+def _binary_plan(
+    cardinalities: np.ndarray,
+    variable_edges: np.ndarray,
+    pairwise: np.ndarray,
+    sources: np.ndarray,
+    targets: np.ndarray,
+) -> tuple[np.ndarray, ...]:
+    """The layout of ``_lbp_kernels.propagate``'s binary part, in this order:
+
+    - ``pair_variables`` (2, n_pairs): the edges (u, v) between two binary variables; row 0 the
+      sources of slots 0..n_pairs-1 (u -> v), row 1 those of slots n_pairs.. (v -> u);
+    - ``pair_binary`` (2, n_pairs): the same variables as indices into ``binary_variables``;
+    - ``pair_factors`` (4, 2 n_pairs): per slot, the factors of (a, b) = (0, 0), (0, 1), (1, 0), (1, 1);
+    - ``binary_variables``: the variables with two states;
+    - ``binary_slots`` (n_groups, max in-degree, 4): the slot of the t-th incoming message (CSR
+      order) of binary variable 4 g + lane, the last slot (always 1.0) where it has fewer;
+    - ``flat_slot`` (n_directed): the slot of a message entering a binary variable, else -1;
+    - ``flat_directed``: the directed edge of each slot;
+    - the other directed edges, done one at a time: into a binary variable from another, from a
+      binary variable into another, and between two variables that are not binary.
+    """
+    binary = cardinalities == 2
+    u, v = variable_edges[:, 0], variable_edges[:, 1]
+    pairs = np.flatnonzero(binary[u] & binary[v])
+    n_pairs = len(pairs)
+    binary_variables = np.flatnonzero(binary).astype(np.int64)
+    binary_index = np.full(len(cardinalities), -1, dtype=np.int64)
+    binary_index[binary_variables] = np.arange(len(binary_variables))
+    pair_variables = np.stack([u[pairs], v[pairs]]).astype(np.int64).reshape(2, n_pairs)
+    forward = pairwise[pairs, :2, :2].reshape(n_pairs, 4)
+    backward = pairwise[pairs, :2, :2].transpose(0, 2, 1).reshape(n_pairs, 4)
+    pair_factors = np.ascontiguousarray(np.concatenate([forward, backward]).T)
+    into_binary = np.flatnonzero(binary[targets])
+    is_pair_message = np.zeros(len(sources), dtype=bool)
+    is_pair_message[2 * pairs] = is_pair_message[2 * pairs + 1] = True
+    flat_directed = np.concatenate([2 * pairs, 2 * pairs + 1, into_binary[~is_pair_message[into_binary]]]).astype(
+        np.int64
+    )
+    flat_slot = np.full(len(sources), -1, dtype=np.int64)
+    flat_slot[flat_directed] = np.arange(len(flat_directed))
+    incoming = np.argsort(targets, kind="stable")
+    in_degree = np.bincount(targets, minlength=len(cardinalities))
+    n_groups = -(-len(binary_variables) // 4)
+    max_degree = int(in_degree[binary_variables].max(initial=0))
+    slots_by_variable = np.full((n_groups * 4, max_degree), len(flat_directed))
+    # Each message's rank among those entering its target, in CSR (stable) order.
+    entering_target = targets[incoming]
+    rank = np.arange(len(incoming)) - np.concatenate([[0], np.cumsum(in_degree)])[entering_target]
+    into = binary[entering_target]
+    slots_by_variable[binary_index[entering_target[into]], rank[into]] = flat_slot[incoming[into]]
+    binary_slots = slots_by_variable.reshape(n_groups, 4, max_degree).transpose(0, 2, 1)
+    plan = (
+        pair_variables,
+        binary_index[pair_variables],
+        pair_factors,
+        binary_variables,
+        np.ascontiguousarray(binary_slots, dtype=np.int64),
+        flat_slot,
+        flat_directed,
+        np.flatnonzero(~is_pair_message & binary[targets]).astype(np.int64),
+        np.flatnonzero(binary[sources] & ~binary[targets]).astype(np.int64),
+        np.flatnonzero(~binary[sources] & ~binary[targets]).astype(np.int64),
+    )
+    for array in plan:
+        array.flags.writeable = False
+    return plan
 
 
 def _pass_settings(
@@ -153,6 +225,11 @@ def _pass_settings(
 ) -> tuple[np.ndarray, float, np.ndarray]:
     """Validated (damping (2,), tolerance, max_iterations (2,)) of the sum- and max-product passes
     (read-only arrays), memoised: a caller settles with the same few settings again and again."""
+    if sum_product is None and max_product is None:  # the common case, without building pairs
+        try:
+            return _memoised_pass_settings(damping, tolerance, max_iterations, None, None, None, None)
+        except TypeError:  # not hashable: validated (and refused) below, uncached
+            return _validated_pass_settings(damping, tolerance, max_iterations, None, None)
     try:
         own = [(None, None) if pair is None else tuple(pair) for pair in (sum_product, max_product)]
         if any(len(pair) != 2 for pair in own):
@@ -497,7 +574,8 @@ class ConceptWeb:
             sum_messages,
             max_messages,
         )
-        steps, settled = iterations.max(axis=1).tolist(), np.all(converged, axis=1).tolist()
+        # Per object in Python: for the few objects of a scene, quicker than two numpy reductions.
+        steps, settled = [max(row) for row in iterations.tolist()], [all(row) for row in converged.tolist()]
         return [
             WebInference(
                 probabilities[i],

@@ -99,7 +99,8 @@ def scene_novelty(
     without the tokens ``window_start:window_stop`` (the recent scenes, which a first scene of a
     new context may already have pulled into an old one). The block terms are those of
     :func:`partition_scans`, as the scene's tokens joining one by one:
-    Π_j (n_kc_j + β_c_j + earlier c_j of the scene) / (T_k + B + j). The counts are restored.
+    Π_j (n_kc_j + β_c_j + earlier c_j of the scene) / (T_k + B + j). The model's counts are only
+    read (the window's share of them is counted apart and subtracted).
     """
     n_tokens = word_ids.shape[0]
     corpus_total = 0.0
@@ -110,6 +111,8 @@ def scene_novelty(
     beta = np.empty(n_tokens)
     earlier = np.empty(n_tokens)
     seen = np.zeros(vocab_size, dtype=np.int32)
+    local = np.full(vocab_size, -1, dtype=np.int64)  # each of the scene's concepts, numbered
+    n_distinct = 0
     for j in range(n_tokens):
         w = word_ids[j]
         corpus = 0.0
@@ -118,16 +121,26 @@ def scene_novelty(
         beta[j] = scale * (corpus + xi)
         earlier[j] = seen[w]
         seen[w] += 1
+        if local[w] < 0:
+            local[w] = n_distinct
+            n_distinct += 1
+    # The window's tokens, counted for the scene's concepts only, are taken off the counts as they
+    # are read: the model's arrays are not touched, and the integer differences are the counts.
+    window_wk = np.zeros((n_distinct, n_contexts), dtype=np.int64)
+    window_k = np.zeros(n_contexts, dtype=np.int64)
     for i in range(window_start, window_stop):
-        n_wk[words[i], z[i]] -= 1
-        n_k[z[i]] -= 1
+        window_k[z[i]] += 1
+        u = local[words[i]]
+        if u >= 0:
+            window_wk[u, z[i]] += 1
     best = -np.inf
     fresh = 0.0
     for k in range(n_contexts + 1):  # k = n_contexts: the fresh context
         log_weight, weight = 0.0, 1.0
-        held = n_k[k] if k < n_contexts else 0.0
+        held = n_k[k] - window_k[k] if k < n_contexts else 0.0
         for j in range(n_tokens):
-            count = n_wk[word_ids[j], k] if k < n_contexts else 0.0
+            w = word_ids[j]
+            count = n_wk[w, k] - window_wk[local[w], k] if k < n_contexts else 0.0
             weight *= (count + beta[j] + earlier[j]) / (held + prior_total + j)
             if weight < 1e-200:
                 log_weight += math.log(weight)
@@ -137,7 +150,4 @@ def scene_novelty(
             best = max(best, log_weight)
         else:
             fresh = log_weight
-    for i in range(window_start, window_stop):
-        n_wk[words[i], z[i]] += 1
-        n_k[z[i]] += 1
     return fresh - best

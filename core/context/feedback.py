@@ -142,20 +142,65 @@ def context_concepts(context_model: IncrementalLDA, vocabulary: Vocabulary) -> C
     if not isinstance(vocabulary, Vocabulary):
         raise InvalidInputError("vocabulary", f"expected a Vocabulary, got {type(vocabulary).__name__}")
     state = context_model.lda_state
-    n_contexts, n_concepts = state.n_contexts, len(vocabulary.concepts)
-    given = np.zeros((n_contexts, n_concepts))
-    informed = np.zeros(n_concepts, dtype=bool)
     if state.n_tokens == 0:
-        return ContextConcepts(given, informed)
-    layout = _layout(vocabulary, context_model.vocabulary)
-    known, column = layout.known, layout.column
+        return ContextConcepts(
+            np.zeros((state.n_contexts, len(vocabulary.concepts))), np.zeros(len(vocabulary.concepts), bool)
+        )
+    counts = state.n_kw[:, _layout(vocabulary, context_model.vocabulary).column]
+    return _memoised_context_concepts(
+        vocabulary,
+        context_model.vocabulary,
+        counts.shape,
+        counts.dtype.str,
+        counts.tobytes(),
+        state.n_k.dtype.str,
+        state.n_k.tobytes(),
+        state.vocab_size,
+        state.xi,
+    )
+
+
+@functools.lru_cache(maxsize=256)
+def _memoised_context_concepts(
+    vocabulary: Vocabulary,
+    model_vocabulary: tuple[str, ...],
+    shape: tuple[int, int],
+    dtype: str,
+    counts_bytes: bytes,
+    totals_dtype: str,
+    totals_bytes: bytes,
+    vocab_size: int,
+    xi: float,
+) -> ContextConcepts:
+    """:func:`context_concepts` from everything it reads (the vocabulary's counts, n_k, |W|, ξ),
+    memoised on their bytes: the scenes of a serving model ask again and again between two
+    learned scenes, and a key made of the counts themselves can never be stale. The arrays are
+    read-only, as they are shared between callers."""
+    given, informed = _context_concepts(
+        _layout(vocabulary, model_vocabulary),
+        np.frombuffer(counts_bytes, dtype=dtype).reshape(shape),
+        np.frombuffer(totals_bytes, dtype=totals_dtype),
+        vocab_size,
+        xi,
+    )
+    given.flags.writeable = False
+    informed.flags.writeable = False
+    return ContextConcepts(given, informed)
+
+
+def _context_concepts(
+    layout: _ConceptLayout, counts: np.ndarray, n_k: np.ndarray, vocab_size: int, xi: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """P(c | k) and ``informed`` of a model with tokens, from its counts of the vocabulary's concepts."""
+    given = np.zeros(counts.shape)
+    informed = np.zeros(counts.shape[1], dtype=bool)
+    known = layout.known
     # φ = (n_kw + ξ) / (n_k + |W|ξ) of the vocabulary's concepts; a concept the model never met
     # has the φ of a concept with no token.
-    counts = state.n_kw[:, column]
-    denominator = state.n_k[:, None] + state.vocab_size * state.xi
-    phi = (counts + state.xi) / denominator
+    denominator = n_k[:, None] + vocab_size * xi
+    phi = (counts + xi) / denominator
     if not layout.all_known:
-        phi = np.where(known, phi, state.xi / denominator)
+        phi = np.where(known, phi, xi / denominator)
     seen = known & (counts.sum(axis=0) > 0)
     # The nouns (group 0) and each adjective pair: φ renormalised over the group, where it has a token.
     # Each group's total adds its concepts in vocabulary order (what a bincount over the group does).
@@ -179,7 +224,7 @@ def context_concepts(context_model: IncrementalLDA, vocabulary: Vocabulary) -> C
         per_object = phi[:, verbs] / noun_total[:, None]
         given[:, verbs] = np.minimum(per_object, 1.0)
         informed[verbs] = True
-    return ContextConcepts(given, informed)
+    return given, informed
 
 
 @dataclass(frozen=True)

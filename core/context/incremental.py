@@ -247,12 +247,20 @@ class IncrementalLDA:
         """
         words = _scene_words(words)
         uniforms = SeededUniforms(_validated_seed(seed))
-        index = self._index
-        known = np.fromiter((index[w] for w in words if w in index), dtype=np.int32)
+        known = self._known_ids(words)
         if known.shape[0] == 0:
             return np.full(self.n_contexts, 1.0 / self.n_contexts)
         sampler = self.hyperparameters.sampler
         return self._state.fold_in(known, uniforms, sampler.inference_sweeps, sampler.inference_burn_in)
+
+    def _known_ids(self, words: Sequence[str]) -> np.ndarray:
+        """The model ids of ``words`` in order, leaving out the words it has never seen; in one
+        pass through C when it knows them all (the common case, half the time of a filter)."""
+        index = self._index
+        try:
+            return np.fromiter(map(index.__getitem__, words), dtype=np.int32, count=len(words))
+        except KeyError:
+            return np.fromiter((index[w] for w in words if w in index), dtype=np.int32)
 
     def context_posterior(self, scene: Sequence[str] | int, *, seed: int = 0) -> np.ndarray:
         """P(χ | scene), (K,): a learned scene by index (its θ), or an unseen one by its concepts."""

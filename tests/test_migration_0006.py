@@ -74,10 +74,8 @@ def _stored(engine: Engine, with_version: bool) -> dict[str, tuple[dict[str, Any
     return {row[0]: (row[1], row[2] if with_version else None) for row in rows}
 
 
-@pytest.fixture
-def flat_database(engine: Engine) -> Engine:
-    """A database at the revision before 0006 holding one model per kind of flat row."""
-    _migrate(engine, "downgrade", "0006-1")
+def _insert_flat_rows(engine: Engine) -> None:
+    """One model per kind of flat row, as a process older than 0006 wrote them."""
     with engine.begin() as connection:
         connection.execute(
             MODEL.insert(),
@@ -89,6 +87,13 @@ def flat_database(engine: Engine) -> Engine:
                 for model_id, row in ROWS.items()
             ],
         )  # fmt: skip
+
+
+@pytest.fixture
+def flat_database(engine: Engine) -> Engine:
+    """A database at the revision before 0006 holding one model per kind of flat row."""
+    _migrate(engine, "downgrade", "0006-1")
+    _insert_flat_rows(engine)
     return engine
 
 
@@ -153,17 +158,7 @@ def test_a_flat_row_written_during_a_rolling_upgrade_loads_as_the_migration_woul
     """A process older than 0006 still writes flat rows after the upgrade; the column's server
     default marks them as version 1, and the registry reads them as the migration would have."""
     upgrade_to_head(engine)
-    with engine.begin() as connection:
-        connection.execute(
-            MODEL.insert(),
-            [
-                {
-                    "id": model_id, "name": model_id, "seed": 0, "sigma": 0.5, "hyperparameters": row,
-                    "vocabulary": {}, "created_at": NOW, "updated_at": NOW,
-                }
-                for model_id, row in ROWS.items()
-            ],
-        )  # fmt: skip
+    _insert_flat_rows(engine)
     with Session(engine) as session:
         rows = {row.id: row for row in session.scalars(sa.select(Model))}
     assert {row.hyperparameters_version for row in rows.values()} == {1}

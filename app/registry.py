@@ -41,6 +41,7 @@ from core.concept_web import ConceptWeb
 from core.context.hyperparameters import nest_flat_settings
 from core.context.incremental import ContextModelState, IncrementalLDA, SceneUpdate
 from core.context.k_selection import K_RULES
+from core.context.lda import context_word_counts
 from core.errors import InvalidInputError
 from core.planning import BehaviourEffects, Workspace, learn_effects
 from core.prototypes.prototypes import PrototypeSet
@@ -577,10 +578,10 @@ def stored_incremental_lda(stored: lda_repository.StoredStart, hyperparameters: 
 
 def _counts(words: np.ndarray, contexts: np.ndarray, n_contexts: int, n_words: int) -> np.ndarray:
     """n_kw (K × |W|) of these assignments."""
-    if words.size and (contexts.max() >= n_contexts or words.max() >= n_words or min(contexts.min(), words.min()) < 0):
-        raise InvalidInputError("state", "a token names a context or concept outside the checkpoint's")
-    flat = np.bincount(contexts.astype(np.int64) * n_words + words, minlength=n_contexts * n_words)
-    return flat.reshape(n_contexts, n_words).astype(np.int32)
+    try:
+        return context_word_counts(words, contexts, n_contexts, n_words)
+    except ValueError:
+        raise InvalidInputError("state", "a token names a context or concept outside the checkpoint's") from None
 
 
 def catch_up(session: Session, writer: ModelWriter) -> bool:

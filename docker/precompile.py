@@ -76,6 +76,8 @@ def precompile() -> float:
                     plan = {"object": "cup", "start": 8, "goal": 5, "obstacles": {"plate": 3}, "mode": mode}
                     _checked(client.post(f"/v1/models/{model}/plans", json=plan))
                 _checked(client.get(f"/v1/models/{model}/contexts"))
+        with TestClient(serving_app(settings)) as client:  # a start with stored models: the load's kernels
+            _checked(client.get("/v1/models"))
     return time.perf_counter() - started
 
 

@@ -282,15 +282,7 @@ class ModelWriter:
         self._changed = True
         if fitted is not None:
             self.fitted = fitted
-        self.incremental_lda.catch_up(
-            new_words=[name for name, _ in changes.new_words],
-            n_contexts=changes.context_count,
-            moved=changes.tokens.moved,
-            added=changes.tokens.added,
-            count_entries=changes.count_entries,
-            scene_count=changes.scene_count,
-            rng_state=changes.state["rng_state"],
-        )
+        apply_stored_changes(self.incremental_lda, changes)
         self.word_kinds.extend(kind for _, kind in changes.new_words)
         self.training_object_count = training_object_count
         self.version = changes.version
@@ -484,6 +476,20 @@ def training_effects(session: Session, model_id: str) -> tuple[list[list[float]]
     vectors = [vector for obj in objects for vector in obj.effects.values()]
     behaviours = [behaviour for obj in objects for behaviour in obj.effects]
     return vectors, behaviours, len(objects)
+
+
+def apply_stored_changes(incremental_lda: IncrementalLDA, changes: lda_repository.StoredChanges) -> None:
+    """Bring ``incremental_lda`` to the state the rows written since its version give (another
+    process's writes: words, moved and added tokens, the changed n_kw entries, the random state)."""
+    incremental_lda.catch_up(
+        new_words=[name for name, _ in changes.new_words],
+        n_contexts=changes.context_count,
+        moved=changes.tokens.moved,
+        added=changes.tokens.added,
+        count_entries=changes.count_entries,
+        scene_count=changes.scene_count,
+        rng_state=changes.state["rng_state"],
+    )
 
 
 def stored_hyperparameters(row: Model) -> dict[str, Any]:

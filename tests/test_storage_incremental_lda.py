@@ -9,6 +9,7 @@ import pytest
 from sqlalchemy import Engine, text
 from sqlalchemy.exc import IntegrityError
 
+from app.registry import apply_stored_changes
 from core.context.incremental import IncrementalLDA
 from sim.world import World
 from storage.database import create_database_engine, create_session_makers
@@ -157,15 +158,7 @@ def test_checkpoints_compact_the_batches_and_a_process_too_far_behind_is_told_to
         with pytest.raises(lda_repository.DamagedBatchError, match="starts at token"):
             lda_repository.load_changes(session, "m", since_version=6, word_count=0, token_count=0)
     assert changes is not None
-    one_interval_behind.catch_up(
-        new_words=[name for name, _ in changes.new_words],
-        n_contexts=changes.context_count,
-        moved=changes.tokens.moved,
-        added=changes.tokens.added,
-        count_entries=changes.count_entries,
-        scene_count=changes.scene_count,
-        rng_state=changes.state["rng_state"],
-    )
+    apply_stored_changes(one_interval_behind, changes)
     expected, caught_up = lda.to_state(), one_interval_behind.to_state()
     for name in ("words", "assignments", "doc_offsets", "n_kw"):
         assert np.array_equal(getattr(caught_up, name), getattr(expected, name)), name

@@ -103,8 +103,8 @@ def build(
                 for i in range(min(BATCH, size - learned)):
                     if i:
                         write.version += 1  # one version per scene, as the service gives them
-                    prepared = scene_service.prepare_scene(model, bodies[learned % len(bodies)])
                     key = f"{learned:032x}" if keyed else None
+                    prepared = scene_service.prepare_scene(model, bodies[learned % len(bodies)], key)
                     scene_service.learn_scene(write.session, model, write.version, prepared, key)
                     learned += 1
                 write.version_saved = True

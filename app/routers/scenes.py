@@ -80,7 +80,7 @@ def _learn_scene(
     state: AppState, model: ModelRuntime, body: SceneCreate, idempotency_key: str | None
 ) -> tuple[str, bool]:
     """On the admitted worker thread: perception before the model's lock, the learning under it."""
-    prepared = scene_service.prepare_scene(model, body)
+    prepared = scene_service.prepare_scene(model, body, idempotency_key)
     with model_write(state, model) as write:
         answer, replayed = scene_service.learn_scene(
             write.session, model, write.version, prepared, idempotency_key, state.metrics

@@ -60,8 +60,8 @@ class PreparedScene:
     """A scene analysed outside the model's lock (:func:`prepare_scene`), waiting for :func:`learn_scene`."""
 
     body: SceneCreate
-    request_hash: bytes
-    """SHA-256 digest of the body (stored with a keyed scene, for its retries to match)."""
+    request_hash: bytes | None
+    """SHA-256 digest of the body, for a keyed scene only (stored, for its retries to match)."""
     perception: Perception
     """The perception the analysis used (compared by identity: a fit replaces it whole)."""
     analysis: SceneAnalysis | None
@@ -78,13 +78,13 @@ class PreparedScene:
         return self.analysis
 
 
-def prepare_scene(model: ModelRuntime, body: SceneCreate) -> PreparedScene:
-    """Perception and concept webs of ``body`` (and its hash), without the model's lock: changes
+def prepare_scene(model: ModelRuntime, body: SceneCreate, idempotency_key: str | None) -> PreparedScene:
+    """Perception and concept webs of ``body`` (and its hash if it is keyed), without the model's lock: changes
     nothing, so that one heavy scene never holds the lock that the model's other requests wait for.
     A refusal is kept, not raised: a retried scene's stored answer (Idempotency-Key) wins over it,
     as when the analysis ran under the lock."""
     perception = model.perception
-    request_hash = hashlib.sha256(body.model_dump_json().encode()).digest()
+    request_hash = None if idempotency_key is None else hashlib.sha256(body.model_dump_json().encode()).digest()
     try:
         analysis = analyse_objects(perception, body.objects, model.id)
     except (ContextwebError, InvalidInputError) as refusal:
@@ -250,7 +250,7 @@ def _save(
     answer: SceneRead,
     answer_json: str,
     idempotency_key: str | None,
-    request_hash: bytes,
+    request_hash: bytes | None,
 ) -> None:
     first_word = len(model.word_kinds) - len(update.vocabulary_additions)
     with pipelined(session):  # PostgreSQL: the scene's statements in one round trip, its notification too
@@ -270,7 +270,7 @@ def _save_rows(
     answer: SceneRead,
     answer_json: str,
     idempotency_key: str | None,
-    request_hash: bytes,
+    request_hash: bytes | None,
 ) -> None:
     lda_repository.save_scene(
         session,
@@ -299,7 +299,7 @@ def _save_rows(
         model.id,
         update.scene_index,
         idempotency_key=idempotency_key,
-        request_hash=None if idempotency_key is None else request_hash,
+        request_hash=request_hash,
         context_count=answer.context_count,
         map_context=answer.map_context,
         context_posterior=answer.context_posterior,

@@ -332,19 +332,8 @@ class ModelRuntime:
     """Every this-many scenes the model's checkpoint is rewritten (the registry's, as above)."""
 
     @classmethod
-    def from_row(
-        cls,
-        row: Model,
-        *,
-        fitted: FittedPerception,
-        incremental_lda: IncrementalLDA,
-        word_kinds: list[str | None],
-        training_object_count: int,
-        version: int = 0,
-        unavailable: str | None = None,
-        failed_version: int | None = None,
-    ) -> ModelRuntime:
-        """The runtime of the model stored as ``row`` with this in-memory state, its summary published."""
+    def from_row(cls, row: Model, writer: ModelWriter) -> ModelRuntime:
+        """The runtime of the model stored as ``row``, its in-memory state held by ``writer``."""
         return cls(
             id=row.id,
             name=row.name,
@@ -352,16 +341,7 @@ class ModelRuntime:
             sigma=row.sigma,
             created_at=row.created_at,
             hyperparameters=stored_hyperparameters(row),
-            writer=ModelWriter(
-                row.id,
-                fitted,
-                incremental_lda,
-                word_kinds,
-                training_object_count,
-                version=version,
-                unavailable=unavailable,
-                failed_version=failed_version,
-            ),
+            writer=writer,
         )
 
     @classmethod
@@ -371,15 +351,9 @@ class ModelRuntime:
             vocabulary = Vocabulary.from_dict(row.vocabulary)
         except Exception:  # noqa: BLE001 - a corrupt vocabulary is one more reason the model cannot load
             vocabulary = Vocabulary(nouns=("unknown",), adjective_pairs=(), verbs=())
-        return cls.from_row(
-            row,
-            fitted=FittedPerception(Perception(vocabulary), fitted_at=row.fitted_at),
-            incremental_lda=IncrementalLDA(),
-            word_kinds=[],
-            training_object_count=0,
-            unavailable=reason,
-            failed_version=failed_version,
-        )
+        fitted = FittedPerception(Perception(vocabulary), fitted_at=row.fitted_at)
+        writer = ModelWriter(row.id, fitted, IncrementalLDA(), [], 0, unavailable=reason, failed_version=failed_version)
+        return cls.from_row(row, writer)
 
     @property
     def lock(self) -> threading.Lock:
@@ -521,14 +495,9 @@ def load_runtime(session: Session, row: Model) -> ModelRuntime:
     stored = lda_repository.load_start(session, row.id)
     incremental_lda = stored_incremental_lda(stored, stored_hyperparameters(row))
     vectors, behaviours, training_count = training_effects(session, row.id)
-    return ModelRuntime.from_row(
-        row,
-        fitted=FittedPerception.from_row(row, Vocabulary.from_dict(row.vocabulary), vectors, behaviours),
-        incremental_lda=incremental_lda,
-        word_kinds=stored.word_kinds,
-        training_object_count=training_count,
-        version=stored.version,
-    )
+    fitted = FittedPerception.from_row(row, Vocabulary.from_dict(row.vocabulary), vectors, behaviours)
+    writer = ModelWriter(row.id, fitted, incremental_lda, stored.word_kinds, training_count, version=stored.version)
+    return ModelRuntime.from_row(row, writer)
 
 
 def stored_incremental_lda(stored: lda_repository.StoredStart, hyperparameters: dict[str, Any]) -> IncrementalLDA:

@@ -7,7 +7,7 @@ import uuid
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput
-from app.registry import FittedPerception, ModelRegistry, ModelRuntime, jsonable
+from app.registry import FittedPerception, ModelRegistry, ModelRuntime, ModelWriter, jsonable
 from app.schemas.models import Hyperparameters as HyperparametersSchema
 from app.schemas.models import ModelCreate, ModelRead, VocabularySchema
 from app.services.perception import Perception
@@ -45,13 +45,8 @@ def create_model(session: Session, registry: ModelRegistry, body: ModelCreate) -
         state={"rng_state": jsonable(incremental_lda.to_state().rng_state)},
         words=[(i, name, vocabulary.kind(name)) for i, name in enumerate(vocabulary.concepts)],
     )
-    model = ModelRuntime.from_row(
-        row,
-        fitted=FittedPerception(Perception(vocabulary)),
-        incremental_lda=incremental_lda,
-        word_kinds=list(vocabulary.kinds),
-        training_object_count=0,
-    )
+    writer = ModelWriter(row.id, FittedPerception(Perception(vocabulary)), incremental_lda, list(vocabulary.kinds), 0)
+    model = ModelRuntime.from_row(row, writer)
     after_commit(session, lambda: registry.add(model))
     return model
 

@@ -45,11 +45,35 @@ def _headers(path: str, extra: str) -> bytes:
 
 
 def _read_until_closed(sock: socket.socket) -> bytes:
-    """Everything the server sends until it closes the connection (a timeout fails the test)."""
+    """Everything the server sends until it closes the connection (a timeout fails the test).
+
+    A client that is still sending when the server closes gets a reset instead of an
+    orderly end: the server's kernel answers bytes that arrive after its close with RST
+    (TCP, RFC 1122 4.2.2.13). That is accepted only once the whole response, as long as
+    its Content-Length says, has arrived before the reset.
+    """
     received = b""
-    while chunk := sock.recv(65536):
+    while True:
+        try:
+            chunk = sock.recv(65536)
+        except ConnectionResetError:
+            if not _is_complete_response(received):
+                raise
+            return received
+        if not chunk:
+            return received
         received += chunk
-    return received
+
+
+def _is_complete_response(received: bytes) -> bool:
+    head, separator, body = received.partition(b"\r\n\r\n")
+    if not separator:
+        return False
+    for line in head.lower().split(b"\r\n")[1:]:
+        name, _, value = line.partition(b":")
+        if name.strip() == b"content-length":
+            return len(body) >= int(value)
+    return False
 
 
 def _error_of(response: bytes) -> tuple[int, dict[str, object], bytes]:

@@ -19,7 +19,6 @@ from __future__ import annotations
 import os
 import select
 import sqlite3
-import threading
 import weakref
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -32,6 +31,8 @@ from sqlalchemy.exc import DBAPIError, DisconnectionError
 from sqlalchemy.orm import Session, sessionmaker
 from sqlalchemy.pool import Pool
 from sqlalchemy.types import TypeEngine
+
+from storage.write_turns import WriteTurn
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SQLITE_PATH = PROJECT_ROOT / "var" / "contextweb.sqlite3"
@@ -99,39 +100,31 @@ def create_database_engine(
         Path(database).parent.mkdir(parents=True, exist_ok=True)
     engine = create_engine(url, pool_size=pool_size, max_overflow=pool_size, connect_args={"check_same_thread": False})
     _install_sqlite_pragmas(engine, sqlite_synchronous, database, sqlite_busy_timeout_ms)
-    _WRITE_TURNS[engine.pool] = (threading.Lock(), sqlite_busy_timeout_ms / 1000)
+    _WRITE_TURNS[engine.pool] = WriteTurn(database, sqlite_busy_timeout_ms / 1000)
     return engine
 
 
-#: Per SQLite engine (its pool, which its option engines share): the lock this process's write
-#: transactions take turns on (:func:`write_turn`), and how long one waits for it (the busy timeout).
-_WRITE_TURNS: weakref.WeakKeyDictionary[Pool, tuple[threading.Lock, float]] = weakref.WeakKeyDictionary()
+#: Per SQLite engine (its pool, which its option engines share): the turn this process's write
+#: transactions take at the database's write lock (storage/write_turns.py).
+_WRITE_TURNS: weakref.WeakKeyDictionary[Pool, WriteTurn] = weakref.WeakKeyDictionary()
 
 
 @contextmanager
 def write_turn(sessions: sessionmaker[Session]) -> Iterator[None]:
     """This process's turn to run a write transaction on the database of ``sessions``.
 
-    SQLite: one at a time per process, handed from one thread to the next by a mutex. Without it
-    every waiting thread polls the database's one write lock in SQLite's busy handler, which sleeps
-    up to 100 ms between tries, so the lock sat free while its waiters slept (8 clients writing to
-    8 models: tails of seconds and fewer scenes a second; docs/benchmarks.md). Writers of other
-    processes still meet at the database's lock, as before. The wait is bounded by the busy timeout,
-    then it fails as a ``BEGIN IMMEDIATE`` would (SQLITE_BUSY: a 503 ``storage_busy``). PostgreSQL:
-    nothing (its writers wait on row locks, without polling)."""
+    SQLite: one writer at a time, handed on at once from one thread to the next (a mutex) and from
+    one process to the next (a ``flock`` on a file beside the database), rather than by SQLite's
+    busy handler, which sleeps up to 100 ms between tries, so the lock sat free while its waiters
+    slept (tails of seconds and fewer scenes a second: docs/benchmarks.md). The wait is bounded by
+    the busy timeout, then it fails as a ``BEGIN IMMEDIATE`` would (SQLITE_BUSY: a 503
+    ``storage_busy``). PostgreSQL: nothing (its writers wait on row locks, without polling)."""
     turn = _WRITE_TURNS.get(sessions.kw["bind"].pool)
     if turn is None:
         yield
         return
-    lock, timeout_seconds = turn
-    if not lock.acquire(timeout=timeout_seconds):
-        busy = sqlite3.OperationalError("database is locked (this process's other writes held it)")
-        busy.sqlite_errorcode = sqlite3.SQLITE_BUSY
-        raise DBAPIError.instance("BEGIN IMMEDIATE", (), busy, sqlite3.Error)
-    try:
+    with turn.held():
         yield
-    finally:
-        lock.release()
 
 
 def _install_postgres_liveness_check(engine: Engine) -> None:

@@ -11,6 +11,8 @@ import numpy as np
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, text
 
+from app.deps import model_write
+from app.registry import ModelRuntime
 from app.schemas.scenes import ANSWER_DECIMALS, SceneCreate, SceneRead
 from app.services.perception import (
     SETTLED_WEBS_CACHED,
@@ -20,11 +22,13 @@ from app.services.perception import (
     analyse_objects,
     reported,
 )
+from app.services.scenes import PreparedScene, learn_scene, prepare_scene
+from app.state import AppState
 from core.concept_web import ConceptWeb, WebInference
 from sim.world import World
 from storage.database import create_session_makers
 from storage.repositories import incremental_lda as lda_repository
-from tests.conftest import CONTEXT_CONCEPTS, concept_scenes, synthetic_training_objects
+from tests.conftest import CONTEXT_CONCEPTS, FAST_HYPERPARAMETERS, concept_scenes, synthetic_training_objects
 
 KITCHEN = {"objects": [{"concepts": ["cup", "hard", "short"]}, {"concepts": ["plate", "round"]}]}
 PLAYROOM = {"objects": [{"concepts": ["ball", "soft", "noisy"]}, {"concepts": {"box": 0.9, "edgy": 0.8}}]}
@@ -212,3 +216,43 @@ def test_memoised_concept_webs_are_the_webs_a_cold_run_settles() -> None:
     for key in (b"a", b"b", b"a", b"c"):
         small.put(key, _webs(memoised)[0])
     assert small.get(b"b") is None and small.get(b"a") is not None and small.get(b"c") is not None
+
+
+def test_feedback_prepared_before_the_write_is_used_only_while_memory_stands_where_it_was(client: TestClient) -> None:
+    """Eq. 6's feedback is computed before the database's write lock (``prepare_scene``); if another
+    write changes memory in between, the scene's answer must be the one computed after it, as two
+    identical models fed the same scenes in the two orders of events show."""
+    state: AppState = client.app_state["contextweb"]
+    objects = synthetic_training_objects(World.paper(0), seed=1)
+    models = []
+    for _ in range(2):
+        created = client.post("/v1/models", json={"name": "twin", "seed": 11, "hyperparameters": FAST_HYPERPARAMETERS})
+        model_id = created.json()["id"]
+        client.post(f"/v1/models/{model_id}/training-objects", json={"objects": objects}).raise_for_status()
+        client.post(f"/v1/models/{model_id}/fit", json={"method": "kmeans"}).raise_for_status()
+        for scene in concept_scenes(4, seed=5):
+            assert client.post(f"/v1/models/{model_id}/scenes", json=scene).status_code == 201
+        model = state.registry.get(model_id)
+        assert model is not None
+        models.append(model)
+    earlier, later = (SceneCreate.model_validate(body) for body in concept_scenes(2, seed=21))
+
+    def learn(model: ModelRuntime, prepared: PreparedScene) -> dict:
+        with model_write(state, model) as write:
+            answer, _ = learn_scene(write.session, model, write.version, prepared, None)
+        return json.loads(answer)
+
+    stale_model, fresh_model = models
+    stale = prepare_scene(stale_model, later, None)  # then another write changes memory
+    assert stale.analysis is not None and stale.contextual is not None
+    assert stale.in_context_for(stale_model, stale.analysis) is stale.contextual
+    learn(stale_model, prepare_scene(stale_model, earlier, None))
+    stale_answer = learn(stale_model, stale)
+    learn(fresh_model, prepare_scene(fresh_model, earlier, None))
+    fresh_answer = learn(fresh_model, prepare_scene(fresh_model, later, None))
+    assert stale_answer["objects"] == fresh_answer["objects"]
+    assert stale_answer["context_posterior"] == fresh_answer["context_posterior"]
+    # The check can fail: the feedback computed before the other write differs from the answer's.
+    assert [obj["in_context"] for obj in stale_answer["objects"]] != [
+        obj.in_context for obj in stale.contextual.objects
+    ]

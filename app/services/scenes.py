@@ -9,7 +9,9 @@ Learning a scene:
    request waits for it. It runs against the model's perception read once: a
    fit (or a catch-up or reload) replaces the perception whole, and
    :func:`learn_scene` redoes the analysis under the lock if it was replaced
-   meanwhile (rare, and cheap next to the fit that caused it);
+   meanwhile (rare, and cheap next to the fit that caused it); and, if the
+   model's lock is free, the context fed back into the webs (step 3) against the
+   model in memory, used by step 3 if memory has not changed by then;
 
 Then under the model's write lock, :func:`learn_scene`:
 
@@ -67,6 +69,10 @@ class PreparedScene:
     analysis: SceneAnalysis | None
     refusal: ContextwebError | InvalidInputError | None
     """The analysis's refusal of the body (a 4xx), raised by :func:`learn_scene` after the replay check."""
+    contextual: SceneAnalysis | None = None
+    """``analysis`` with Eq. 6's feedback, against the model in memory at ``contextual_of``, or None."""
+    contextual_of: tuple[object, int] | None = None
+    """The Incremental-LDA object and the version of the memory ``contextual`` was computed on."""
 
     def analysis_for(self, model: ModelRuntime) -> SceneAnalysis:
         """The analysis against the model's perception now (redone if a fit replaced it)."""
@@ -77,19 +83,43 @@ class PreparedScene:
         assert self.analysis is not None
         return self.analysis
 
+    def in_context_for(self, model: ModelRuntime, analysis: SceneAnalysis) -> SceneAnalysis:
+        """``analysis`` with Eq. 6's feedback against the model as it stands (under its lock): the
+        one computed by :func:`prepare_scene` if memory has not changed since, else computed now."""
+        if analysis is self.analysis and self.contextual_of == (model.incremental_lda, model.writer.version):
+            assert self.contextual is not None
+            return self.contextual
+        return in_context(model.perception, model.incremental_lda, analysis, sigma=model.sigma, seed=model.seed)
+
 
 def prepare_scene(model: ModelRuntime, body: SceneCreate, idempotency_key: str | None) -> PreparedScene:
     """Perception and concept webs of ``body`` (and its hash if it is keyed), without the model's lock: changes
     nothing, so that one heavy scene never holds the lock that the model's other requests wait for.
     A refusal is kept, not raised: a retried scene's stored answer (Idempotency-Key) wins over it,
-    as when the analysis ran under the lock."""
+    as when the analysis ran under the lock.
+
+    Then, if the model's lock is free, Eq. 6's feedback against memory as it stands, before the
+    database's write lock: on SQLite that lock is the whole database's, and the feedback was a
+    third of the time a scene held it (docs/benchmarks.md). :meth:`PreparedScene.in_context_for`
+    uses it only if memory is still at the same version when the write holds both locks (no write
+    of this process, catch-up or reload came between), so the answer is the one computed under
+    the lock; when the lock is taken, a write of the model is under way and the feedback waits."""
     perception = model.perception
     request_hash = None if idempotency_key is None else hashlib.sha256(body.model_dump_json().encode()).digest()
     try:
         analysis = analyse_objects(perception, body.objects, model.id)
     except (ContextwebError, InvalidInputError) as refusal:
         return PreparedScene(body, request_hash, perception, None, refusal)
-    return PreparedScene(body, request_hash, perception, analysis, None)
+    if not model.lock.acquire(blocking=False):  # a write of the model is under way: it will change memory
+        return PreparedScene(body, request_hash, perception, analysis, None)
+    try:
+        if model.perception is not perception:
+            return PreparedScene(body, request_hash, perception, analysis, None)
+        contextual = in_context(perception, model.incremental_lda, analysis, sigma=model.sigma, seed=model.seed)
+        contextual_of = (model.incremental_lda, model.writer.version)
+    finally:
+        model.lock.release()
+    return PreparedScene(body, request_hash, perception, analysis, None, contextual, contextual_of)
 
 
 def learn_scene(
@@ -115,7 +145,7 @@ def learn_scene(
     analysis = prepared.analysis_for(model)
     words = _scene_words(analysis)
     check_vocabulary_growth(model, words)
-    analysis = in_context(model.perception, model.incremental_lda, analysis, sigma=model.sigma, seed=model.seed)
+    analysis = prepared.in_context_for(model, analysis)
     first_token = model.incremental_lda.lda_state.n_tokens
     started = time.perf_counter()
     update = model.writer.learn_scene(words, partial(_kind, model, body))  # memory holds it until the commit

@@ -118,8 +118,8 @@ def test_a_trickling_chunked_body_meets_the_same_deadline(server: ServerProcess)
     """The deadline is for the whole body, not between two chunks: a chunk every 0.2 s does not keep it open."""
     stop = threading.Event()
     with _connect(server) as sock:
+        started = time.monotonic()  # before the headers leave: the server's clock cannot start earlier
         sock.sendall(_headers("/v1/models", "Transfer-Encoding: chunked\r\n"))
-        started = time.monotonic()
 
         def trickle() -> None:
             while not stop.is_set():

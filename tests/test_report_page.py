@@ -93,7 +93,7 @@ def test_a_failed_experiment_is_reported_not_fatal(quick_report: report.ReportRe
 
 def test_command_line_exits_non_zero_when_a_job_fails(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(experiments.EXPERIMENTS, BROKEN, __name__)
-    assert main(["report", "--out", str(tmp_path), "--only", BROKEN, "--seeds", "5", "6"]) == 1
+    assert main(["report", "--out", str(tmp_path), "--quick", "--only", BROKEN, "--seeds", "5", "6"]) == 1
     assert "not run (seed 5): RuntimeError: simulated failure" in (tmp_path / "report.md").read_text(encoding="utf-8")
 
 

@@ -99,8 +99,8 @@ def prepare_scene(model: ModelRuntime, body: SceneCreate, idempotency_key: str |
     as when the analysis ran under the lock.
 
     Then, if the model's lock is free, Eq. 6's feedback against memory as it stands, before the
-    database's write lock: on SQLite that lock is the whole database's, and the feedback was a
-    third of the time a scene held it (docs/benchmarks.md). :meth:`PreparedScene.in_context_for`
+    database's write lock: on SQLite that lock is the whole database's, and the feedback was two
+    fifths of a scene's GIL time under the locks (py-spy, PostgreSQL; docs/benchmarks.md). :meth:`PreparedScene.in_context_for`
     uses it only if memory is still at the same version when the write holds both locks (no write
     of this process, catch-up or reload came between), so the answer is the one computed under
     the lock; when the lock is taken, a write of the model is under way and the feedback waits."""

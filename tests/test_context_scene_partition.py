@@ -9,6 +9,7 @@ import pytest
 from scipy.special import gammaln
 
 from core.context import IncrementalLDA, LDAState
+from core.context._partition_kernels import _block_log_weight, partition_scans
 from core.context.scene_partition import SceneBlocks, best_partition, corpus_centred_prior, partition_evidence
 from experiments import documents
 from sim.world import WorldConfig, generate_scenes
@@ -148,3 +149,60 @@ def test_a_new_scene_starts_in_one_context_with_consistent_counts() -> None:
     context = state.scene_to_one_context(scene, np.random.default_rng(0))
     assert context == 0 and set(state.assignments[8:].tolist()) == {0}
     assert state.invariant_violations() == []
+
+
+def test_greedy_scans_leave_every_scene_in_its_best_context_by_the_log_gamma_weights() -> None:
+    """The kernel's block weights (products of rising factors) are the log-gamma weights of the
+    module docstring: after greedy scans that move nothing, each scene's context is the argmax of
+    log Γ(T + B) − log Γ(T + N + B) + Σ_c [log Γ(n_c + x_c + β_c) − log Γ(n_c + β_c)] computed by
+    scipy, against what the other scenes and the earlier counts put in each context."""
+    rng = np.random.default_rng(3)
+    n_contexts, vocab_size, n_scenes = 4, 29, 60
+    offsets, words, counts = [0], [], []
+    for _ in range(n_scenes):
+        room = rng.integers(3)
+        concepts = np.unique(rng.choice(np.arange(room * 8, room * 8 + 13) % vocab_size, size=15))
+        words += concepts.tolist()
+        counts += rng.integers(1, 7, size=len(concepts)).tolist()
+        offsets.append(len(words))
+    blocks = SceneBlocks(
+        offsets=np.array(offsets, dtype=np.int64),
+        words=np.array(words, dtype=np.int64),
+        counts=np.array(counts, dtype=np.float64),
+        totals=np.add.reduceat(np.array(counts, dtype=np.float64), offsets[:-1]),
+        base_counts=rng.integers(0, 20, size=(n_contexts, vocab_size)).astype(np.float64),
+    )
+    prior = rng.uniform(0.05, 2.0, vocab_size)
+    labels = rng.integers(0, n_contexts, n_scenes)
+    context_counts = blocks.base_counts.copy()
+    for scene in range(n_scenes):
+        entries = slice(offsets[scene], offsets[scene + 1])
+        context_counts[labels[scene], blocks.words[entries]] += blocks.counts[entries]
+    context_totals = context_counts.sum(axis=1)
+    arguments = (blocks.offsets, blocks.words, blocks.counts, blocks.totals, labels, context_counts, context_totals)
+    for _ in range(50):
+        if partition_scans(*arguments, prior, float(prior.sum()), rng.permutation(n_scenes), np.zeros(0), 0) == 0:
+            break
+    else:
+        pytest.fail("greedy scans kept moving scenes")
+    moved_somewhere = False
+    for scene in range(n_scenes):
+        entries = slice(offsets[scene], offsets[scene + 1])
+        scene_words, scene_counts = blocks.words[entries], blocks.counts[entries]
+        without = context_counts.copy()
+        without[labels[scene], scene_words] -= scene_counts
+        held = without.sum(axis=1) + prior.sum()
+        base = without[:, scene_words] + prior[scene_words]
+        weights = (
+            gammaln(held)
+            - gammaln(held + scene_counts.sum())
+            + (gammaln(base + scene_counts) - gammaln(base)).sum(axis=1)
+        )
+        assert labels[scene] == np.argmax(weights), scene
+        for context in range(n_contexts):  # and the kernel's own weight is scipy's, to rounding
+            kernel = _block_log_weight(
+                without, context, blocks.words, blocks.counts, offsets[scene], offsets[scene + 1], held[context], prior
+            )
+            assert kernel == pytest.approx(weights[context], rel=1e-11, abs=1e-9)
+        moved_somewhere |= bool(np.ptp(weights) > 1.0)
+    assert moved_somewhere, "the contexts must differ for the check to mean anything"

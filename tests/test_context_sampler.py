@@ -147,6 +147,37 @@ def test_fold_in_leaves_the_counts_unchanged_and_is_seeded() -> None:
     assert theta.shape == (3,) and theta.sum() == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_fold_in_is_sampling_the_scene_into_a_copy_of_the_counts(seed: int) -> None:
+    """The kernel keeps Eq. 5's factors as running floats; written out on a copy of the counts with
+    the same uniforms and the same draw rule (the first context whose cumulative weight exceeds
+    u · total), θ must be the same: one draw that differed would move it by ≥ 1 / (tokens · sweeps)."""
+    rng = np.random.default_rng(seed)
+    state = _random_state(seed, n_docs=20, vocab_size=12, n_contexts=int(rng.integers(2, 7)))
+    scene = rng.integers(0, state.vocab_size, size=int(rng.integers(3, 25))).astype(np.int32)
+    sweeps, burn_in = 12, 4
+    uniforms = np.random.default_rng(100 + seed).random(sweeps * scene.shape[0])
+    theta = state.fold_in(scene, np.random.default_rng(100 + seed), sweeps=sweeps, burn_in=burn_in)
+    n_wk, n_k = state.n_wk.astype(np.float64), state.n_k.astype(np.float64)
+    n_contexts, vocab_xi = state.n_contexts, state.vocab_size * state.xi
+    n_dk, z, expected, draw = np.zeros(n_contexts), np.full(scene.shape[0], -1), np.zeros(n_contexts), 0
+    for sweep in range(sweeps):
+        for i, w in enumerate(scene):
+            if z[i] >= 0:
+                n_wk[w, z[i]] -= 1
+                n_k[z[i]] -= 1
+                n_dk[z[i]] -= 1
+            cumulative = np.cumsum((n_wk[w] + state.xi) / (n_k + vocab_xi) * (n_dk + state.alpha))
+            z[i] = min(int(np.searchsorted(cumulative, uniforms[draw] * cumulative[-1], side="right")), n_contexts - 1)
+            draw += 1
+            n_wk[w, z[i]] += 1
+            n_k[z[i]] += 1
+            n_dk[z[i]] += 1
+        if sweep >= burn_in:
+            expected += n_dk + state.alpha
+    assert theta == pytest.approx(expected / expected.sum(), abs=1e-12)
+
+
 def test_reassign_then_restore_returns_the_same_counts() -> None:
     state = _random_state(10)
     counts, saved = state.n_wk.copy(), state.assignments.copy()

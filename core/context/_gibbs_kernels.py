@@ -300,8 +300,19 @@ def fold_in(
         local_words[i] = n_distinct - 1
     sweeps = uniforms.shape[0] // n_tokens
     v_xi = vocab_size * xi
-    local_wk = np.zeros((n_distinct, n_contexts), dtype=np.int64)
-    local_k = np.zeros(n_contexts, dtype=np.int64)
+    # Eq. 5's three factors kept as floats, updated as the document's tokens move: its concepts'
+    # counts plus ξ (the model's, with its own tokens added), the reciprocal of each context's
+    # total plus |W|ξ (two divisions a token instead of K), and n_dk + α.
+    concept_weight = np.empty((n_distinct, n_contexts))
+    for u in range(n_distinct):
+        for k in range(n_contexts):
+            concept_weight[u, k] = n_wk[distinct[u], k] + xi
+    context_total = np.empty(n_contexts)
+    inverse_total = np.empty(n_contexts)
+    for k in range(n_contexts):
+        context_total[k] = n_k[k] + v_xi
+        inverse_total[k] = 1.0 / context_total[k]
+    document_weight = np.full(n_contexts, alpha)
     n_dk = np.zeros(n_contexts, dtype=np.int64)
     z = np.full(n_tokens, -1, dtype=np.int64)
     cumulative = np.empty(n_contexts)
@@ -310,21 +321,24 @@ def fold_in(
     for sweep in range(sweeps):
         for i in range(n_tokens):
             u = local_words[i]
-            w = word_ids[i]
             old = z[i]
             if old >= 0:
-                local_wk[u, old] -= 1
-                local_k[old] -= 1
+                concept_weight[u, old] -= 1.0
+                context_total[old] -= 1.0
+                inverse_total[old] = 1.0 / context_total[old]
+                document_weight[old] -= 1.0
                 n_dk[old] -= 1
             total = 0.0
             for k in range(n_contexts):
-                total += (n_wk[w, k] + local_wk[u, k] + xi) / (n_k[k] + local_k[k] + v_xi) * (n_dk[k] + alpha)
+                total += concept_weight[u, k] * inverse_total[k] * document_weight[k]
                 cumulative[k] = total
             new = _draw(cumulative, n_contexts, uniforms[u_index])
             u_index += 1
             z[i] = new
-            local_wk[u, new] += 1
-            local_k[new] += 1
+            concept_weight[u, new] += 1.0
+            context_total[new] += 1.0
+            inverse_total[new] = 1.0 / context_total[new]
+            document_weight[new] += 1.0
             n_dk[new] += 1
         if sweep >= burn_in:
             for k in range(n_contexts):

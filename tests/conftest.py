@@ -41,19 +41,11 @@ pytest_plugins = ["tests.paper_feedback"]
 def pytest_configure(config: pytest.Config) -> None:
     """numba's on-disk cache filled once, in the process that starts the test workers (xdist's
     controller, or the only process), before any worker starts: with an empty cache (a fresh clone,
-    as in CI) the service's warm-up compiles for ≈ 67 s on the 2-core machine of 2026-12-02, and
-    each of the workers compiled the same kernels at the same time."""
+    as in CI) the service's warm-up compiles for ≈ 67 s on the 2-core machine of 2026-12-02, past
+    the start-up deadlines of the tests that start servers, and each worker compiled the same
+    kernels at the same time; once the cache is written, a server's start loads it in seconds."""
     if not hasattr(config, "workerinput"):
         warm_up_kernels()
-
-
-@pytest.fixture(scope="session", autouse=True)
-def _compiled_kernels_on_disk() -> None:
-    """numba's on-disk cache filled before any test starts a server process (loaded from the disk,
-    after :func:`pytest_configure`): with an empty cache the first server's start-up warm-up would
-    compile for a minute, past the start-up deadlines of the tests that start servers; once the
-    cache is written, their starts load it in a few seconds."""
-    warm_up_kernels()
 
 
 POSTGRES_SERVER_URL = os.environ.get("CONTEXTWEB_TEST_POSTGRES_URL", "postgresql+psycopg://postgres@127.0.0.1:5432")

@@ -313,7 +313,7 @@ def fold_in(
         context_total[k] = n_k[k] + v_xi
         inverse_total[k] = 1.0 / context_total[k]
     document_weight = np.full(n_contexts, alpha)
-    n_dk = np.zeros(n_contexts, dtype=np.int64)
+    n_dk = np.zeros(n_contexts, dtype=np.int64)  # θ sums n_dk + α as before: bit for bit the same θ
     z = np.full(n_tokens, -1, dtype=np.int64)
     cumulative = np.empty(n_contexts)
     theta = np.zeros(n_contexts)

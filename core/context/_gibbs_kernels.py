@@ -590,9 +590,21 @@ def sample_new_scene(
         token_scene[i] = d
     doc_offsets[d + 1] = stop
     scene_to_one_context(words, z, start, stop, d, n_wk, n_k, n_dk, n_contexts, alpha, xi, vocab_size, u_scene)
+    # The rejuvenated tokens are read in one pass before any is sampled. Their loads do not depend
+    # on each other here, so on a corpus larger than the cache their misses overlap; the sampling
+    # below, whose steps do depend on each other, then finds them in cache (1.17x a whole update at
+    # 1,000 scenes, 1.26x at 100,000, docs/benchmarks.md). The concept and the scene's first count
+    # are read for that alone: their sum, checked, keeps the compiler from dropping the reads.
     previous = np.empty(rejuvenated.shape[0], dtype=np.int32)
+    rejuvenated_docs = np.empty(rejuvenated.shape[0], dtype=np.int64)
+    warmed = 0
     for j in range(rejuvenated.shape[0]):
-        previous[j] = z[rejuvenated[j]]
+        i = rejuvenated[j]
+        previous[j] = z[i]
+        rejuvenated_docs[j] = token_scene[i]
+        warmed += words[i] + n_dk[rejuvenated_docs[j], 0]
+    if warmed < 0:
+        raise AssertionError("negative concept ids or counts")
     per_sweep = rejuvenated.shape[0] // sweeps
     tokens = np.empty(sweeps * (stop - start + per_sweep), dtype=np.int64)
     token_docs = np.empty(tokens.shape[0], dtype=np.int64)
@@ -604,7 +616,7 @@ def sample_new_scene(
             j += 1
         for r in range(s * per_sweep, (s + 1) * per_sweep):
             tokens[j] = rejuvenated[r]
-            token_docs[j] = token_scene[rejuvenated[r]]
+            token_docs[j] = rejuvenated_docs[r]
             j += 1
     sample_tokens(tokens, token_docs, words, z, n_wk, n_k, n_dk, n_contexts, alpha, xi, vocab_size, uniforms)
     return previous

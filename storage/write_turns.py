@@ -12,13 +12,15 @@ A ``flock`` cannot be waited for with a deadline, so a contended wait is handed 
 thread per turn that blocks in ``flock`` while the writer waits on an event with the busy timeout;
 a writer that gives up leaves the lock to be released by the waiter as soon as it gets it. (The
 maintained file-lock packages, filelock and portalocker, wait by polling every 50 ms or so: the
-sleeping this replaces.) Where the file cannot be opened (a read-only folder) the turn is the
-mutex alone and processes meet at SQLite's lock, as before.
+sleeping this replaces.) Where the file cannot be opened (a read-only folder), or its ``flock``
+fails (a filesystem without locks answers ENOLCK), the turn is the mutex alone and processes meet
+at SQLite's lock, as before: a warning is logged once, and the write goes on rather than failing.
 """
 
 from __future__ import annotations
 
 import fcntl
+import logging
 import os
 import queue
 import sqlite3
@@ -26,13 +28,15 @@ import threading
 import time
 import weakref
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 
 from sqlalchemy.exc import DBAPIError, StatementError
 
 #: A waiter thread with no request for this long ends (a new one starts on the next contended wait).
 WAITER_IDLE_SECONDS = 2.0
+
+logger = logging.getLogger("contextweb")
 
 
 class WriteTurn:
@@ -53,15 +57,32 @@ class WriteTurn:
             raise _busy("this process's other writes held it")
         try:
             turn_file = self._turn_file()
-            if turn_file is not None and not turn_file.lock(deadline):
-                raise _busy("another process's writes held it")
+            if turn_file is not None:
+                try:
+                    if not turn_file.lock(deadline):
+                        raise _busy("another process's writes held it")
+                except OSError as error:
+                    self._stop_using_file(error)
+                    turn_file = None
             try:
                 yield
             finally:
                 if turn_file is not None:
-                    turn_file.unlock()
+                    try:
+                        turn_file.unlock()
+                    except OSError as error:  # the write is done: it must not fail for the turn's sake
+                        self._stop_using_file(error)
         finally:
             self._mutex.release()
+
+    def _stop_using_file(self, error: OSError) -> None:
+        """From now on the turn is the mutex alone (under the mutex): the turn file's ``flock`` failed."""
+        logger.warning(
+            "SQLite write turns: flock on %s failed (%s); processes on this database now meet at SQLite's lock instead",
+            self.path,
+            error,
+        )
+        self.path, self._file = None, None
 
     def _turn_file(self) -> _TurnFile | None:
         """The open turn file (under the mutex), or None where it cannot be opened (tried again next time)."""
@@ -80,6 +101,8 @@ class _Request:
 
     granted: threading.Event = field(default_factory=threading.Event)
     abandoned: bool = False
+    error: OSError | None = None
+    """Why the waiter's ``flock`` failed, if it did (``granted`` is set then too)."""
     decided: threading.Lock = field(default_factory=threading.Lock)
 
 
@@ -102,6 +125,8 @@ class _TurnFile:
         weakref.finalize(self, os.close, descriptor)
 
     def lock(self, deadline: float) -> bool:
+        """True once this process holds the lock, False past ``deadline``; the ``flock``'s
+        ``OSError`` if it failed otherwise than by being taken."""
         with self._state:
             if self._outstanding == 0:
                 try:
@@ -115,13 +140,14 @@ class _TurnFile:
             if not self._waiter_running:
                 self._waiter_running = True
                 threading.Thread(target=self._wait_for_turns, name="sqlite-write-turn", daemon=True).start()
-        if request.granted.wait(max(0.0, deadline - time.monotonic())):
-            return True
-        with request.decided:
-            if request.granted.is_set():
-                return True
-            request.abandoned = True
-        return False
+        if not request.granted.wait(max(0.0, deadline - time.monotonic())):
+            with request.decided:
+                if not request.granted.is_set():
+                    request.abandoned = True
+                    return False
+        if request.error is not None:
+            raise request.error
+        return True
 
     def unlock(self) -> None:
         fcntl.flock(self.descriptor, fcntl.LOCK_UN)
@@ -138,10 +164,14 @@ class _TurnFile:
                         self._waiter_running = False
                         return
                 continue
-            fcntl.flock(self.descriptor, fcntl.LOCK_EX)
+            try:
+                fcntl.flock(self.descriptor, fcntl.LOCK_EX)
+            except OSError as error:  # the writer raises it (WriteTurn then stops using the file)
+                request.error = error
             with request.decided:
-                if request.abandoned:
-                    fcntl.flock(self.descriptor, fcntl.LOCK_UN)
+                if request.abandoned and request.error is None:
+                    with suppress(OSError):  # not held, then: nothing to give back
+                        fcntl.flock(self.descriptor, fcntl.LOCK_UN)
                 else:
                     request.granted.set()
             with self._state:

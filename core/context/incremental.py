@@ -191,8 +191,8 @@ class IncrementalLDA:
         """Add one scene online (Algorithm 2's loop body) and report what changed.
 
         The sampling is one kernel call (:meth:`LDAState.add_scene_online`) and so is the report
-        (:meth:`LDAState.scene_changes`): at ~80 tokens an update is dominated by per-call
-        overhead, so the bookkeeping is fused rather than spread over numpy calls.
+        (:meth:`LDAState.scene_changes`): at ~64 tokens a scene, numpy calls spread over the
+        bookkeeping would cost more than the sampling, so it is fused.
         """
         words = _scene_words(words)
         state, h = self._state, self.hyperparameters

@@ -400,8 +400,9 @@ class LDAState:
         contexts before the update (int32). The same as :meth:`append_document`,
         :meth:`scene_to_one_context` and :meth:`sample_tokens` one after the other, with the same
         random draws in the same order (the scene's context, the earlier tokens, one uniform per
-        sampled token), in one kernel call (``kernels.sample_new_scene``): the update's latency is
-        mostly per-call overhead.
+        sampled token), in one kernel call (``kernels.sample_new_scene``). What an update costs is
+        mostly the cache misses of its randomly drawn earlier tokens (docs/benchmarks.md), so the
+        kernel reads them all before it samples any.
         """
         earlier = self.n_tokens
         self._reserve_scene(earlier + word_ids.shape[0])

@@ -19,6 +19,8 @@ import subprocess
 import sys
 import textwrap
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -60,6 +62,22 @@ _HOLDER = textwrap.dedent(
 )
 
 
+@contextmanager
+def _held_by_another_process(turn_path: str) -> Iterator[None]:
+    """The turn file locked by another process (:data:`_HOLDER`) until the block ends."""
+    holder = subprocess.Popen(
+        [sys.executable, "-c", _HOLDER, turn_path], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+        yield
+    finally:
+        assert holder.stdin is not None
+        holder.stdin.write("\n")
+        holder.stdin.flush()
+        assert holder.wait(timeout=30) == 0
+
+
 def _bump_in_processes(database: Path, counter: Path, use_turn: bool) -> int:
     counter.write_text("0")
     command = [sys.executable, "-c", _BUMPER, str(database), str(counter), str(BUMPS), "1" if use_turn else "0"]
@@ -88,21 +106,12 @@ def test_the_turn_excludes_other_processes(tmp_path: Path) -> None:
 def test_a_turn_held_elsewhere_is_a_busy_error_after_the_timeout_and_free_after_its_release(tmp_path: Path) -> None:
     database = tmp_path / "turns.sqlite3"
     turn = WriteTurn(str(database), timeout_seconds=0.5)
-    holder = subprocess.Popen(
-        [sys.executable, "-c", _HOLDER, f"{database}-turn"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
-    )
-    try:
-        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+    with _held_by_another_process(f"{database}-turn"):
         for _ in range(2):  # the second wait queues behind the first, abandoned, one
             started = time.monotonic()
             with pytest.raises(OperationalError, match="database is locked"), turn.held():
                 pass
             assert 0.5 <= time.monotonic() - started < 5.0
-    finally:
-        assert holder.stdin is not None
-        holder.stdin.write("\n")
-        holder.stdin.flush()
-        assert holder.wait(timeout=30) == 0
     with turn.held():  # the waiter gave the abandoned turns back: it is free again, here ...
         pass
     # ... and for another process, which gets it while this turn is idle.
@@ -143,19 +152,10 @@ def test_a_failing_flock_leaves_the_mutex_alone_and_writes_go_on(
 def test_a_failing_flock_in_the_waiter_thread_does_not_stall_later_turns(tmp_path: Path) -> None:
     database = tmp_path / "turns.sqlite3"
     turn = WriteTurn(str(database), timeout_seconds=0.5)
-    holder = subprocess.Popen(
-        [sys.executable, "-c", _HOLDER, f"{database}-turn"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
-    )
-    try:
-        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+    with _held_by_another_process(f"{database}-turn"):
         with pytest.raises(OperationalError, match="database is locked"), turn.held():
             pass  # abandoned: the waiter thread still waits in flock, for a turn it must give back
         _break_flock(turn)  # ... on a descriptor that no longer takes flock
-    finally:
-        assert holder.stdin is not None
-        holder.stdin.write("\n")
-        holder.stdin.flush()
-        assert holder.wait(timeout=30) == 0
     for _ in range(3):  # before the fix, the waiter died on EBADF, and every later turn timed out
         started = time.monotonic()
         with turn.held():

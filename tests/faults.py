@@ -57,9 +57,14 @@ from tests.conftest import POSTGRES_SERVER_URL
 
 
 def postgres_admin_engine() -> Engine:
-    """An autocommit engine on the server's ``postgres`` database (for CREATE/ALTER/DROP DATABASE)."""
+    """An autocommit engine on the server's ``postgres`` database (for CREATE/ALTER/DROP DATABASE).
+    Its pooled connections are pinged before use: the clean-up must still drop the database after
+    a restart of the PostgreSQL server (tried by hand with ``pg_ctlcluster … restart``)."""
     return create_engine(
-        f"{POSTGRES_SERVER_URL}/postgres", isolation_level="AUTOCOMMIT", connect_args={"connect_timeout": 3}
+        f"{POSTGRES_SERVER_URL}/postgres",
+        isolation_level="AUTOCOMMIT",
+        pool_pre_ping=True,
+        connect_args={"connect_timeout": 3},
     )
 
 

@@ -1,4 +1,5 @@
-"""The dense and lanes sweep kernels against plain-Python references of Eq. 5, bit for bit.
+"""The dense and lanes sweep kernels, and the online update's token sampler, against plain-Python
+references of Eq. 5, bit for bit.
 
 The kernels write a token's counts only when it moves (core/context/_gibbs_kernels.py, the comment
 above ``sweep_documents``). The references below do what the textbook does, and what the kernels
@@ -18,7 +19,7 @@ from collections.abc import Callable, Iterable
 import numpy as np
 import pytest
 
-from core.context._gibbs_kernels import LANES, sweep_documents, sweep_documents_by_lanes
+from core.context._gibbs_kernels import LANES, sample_tokens, sweep_documents, sweep_documents_by_lanes
 
 Counts = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
@@ -48,26 +49,31 @@ def reference_dense_sweep(
     uniforms: np.ndarray,
 ) -> None:
     """One running sum of (n_wk + ξ) / (n_k + |W|ξ) · (n_dk + α), then the first k past u · Σ."""
-    z, n_wk, n_k, n_dk = counts
-    v_xi = vocab_size * xi
-    n_contexts = n_k.shape[0]
     u_index = 0
     for d in range(offsets.shape[0] - 1):
         for i in range(offsets[d], offsets[d + 1]):
-            w = int(words[i])
-            _take_out(w, d, int(z[i]), counts, -1)
-            cumulative = []
-            total = 0.0
-            for k in range(n_contexts):
-                total += (int(n_wk[w, k]) + xi) * (1.0 / (int(n_k[k]) + v_xi)) * (int(n_dk[d, k]) + alpha)
-                cumulative.append(total)
-            target = float(uniforms[u_index]) * total
+            _resample(i, d, int(words[i]), counts, alpha, xi, vocab_size, float(uniforms[u_index]))
             u_index += 1
-            new = 0
-            while new < n_contexts - 1 and cumulative[new] <= target:
-                new += 1
-            z[i] = new
-            _take_out(w, d, new, counts, 1)
+
+
+def _resample(i: int, d: int, w: int, counts: Counts, alpha: float, xi: float, vocab_size: int, u: float) -> None:
+    """Token ``i`` taken out of its counts (when it has a context), drawn, put back."""
+    z, n_wk, n_k, n_dk = counts
+    v_xi = vocab_size * xi
+    n_contexts = n_k.shape[0]
+    if z[i] >= 0:
+        _take_out(w, d, int(z[i]), counts, -1)
+    cumulative = []
+    total = 0.0
+    for k in range(n_contexts):
+        total += (int(n_wk[w, k]) + xi) * (1.0 / (int(n_k[k]) + v_xi)) * (int(n_dk[d, k]) + alpha)
+        cumulative.append(total)
+    target = u * total
+    new = 0
+    while new < n_contexts - 1 and cumulative[new] <= target:
+        new += 1
+    z[i] = new
+    _take_out(w, d, new, counts, 1)
 
 
 def reference_lanes_sweep(
@@ -183,3 +189,34 @@ def test_a_sweep_equals_the_textbook_take_out_sample_put_back_bit_for_bit(
             assert np.array_equal(got, want)
         moved += int((counts[0] != before).sum())
     assert moved > 0 or n_contexts == 1  # the chain moved, so the equality covers moves as well as stays
+
+
+@pytest.mark.parametrize(("n_contexts", "vocab_size", "xi"), [(1, 7, 0.1), (3, 29, 0.1), (5, 10, 0.1), (9, 40, 0.05)])
+def test_the_online_token_sampler_equals_the_textbook_form_bit_for_bit(
+    n_contexts: int, vocab_size: int, xi: float
+) -> None:
+    """``sample_tokens`` (the online update's sweeps: a list of tokens, repeats allowed, some not yet
+    assigned) against the take-out, sample, put-back form, token by token in the list's order."""
+    words, offsets, counts = _random_corpus(n_contexts + 50, 40, vocab_size, n_contexts, max(1, n_contexts - 2))
+    rng = np.random.default_rng(n_contexts)
+    docs = np.repeat(np.arange(offsets.shape[0] - 1), np.diff(offsets))
+    unassigned = np.flatnonzero(rng.random(words.shape[0]) < 0.1)
+    for i in unassigned:  # tokens not in the counts yet (a new scene's): their first context is drawn
+        _take_out(int(words[i]), int(docs[i]), int(counts[0][i]), counts, -1)
+        counts[0][i] = -1
+    expected = tuple(array.copy() for array in counts)
+    alpha, moved = 0.1, 0
+    for _ in range(3):
+        tokens = rng.integers(0, words.shape[0], size=2 * words.shape[0]).astype(np.int64)
+        uniforms = rng.random(tokens.shape[0])
+        before = counts[0].copy()
+        sample_tokens(
+            tokens, docs[tokens].astype(np.int64), words, counts[0], counts[1], counts[2], counts[3], n_contexts,
+            alpha, xi, vocab_size, uniforms,
+        )  # fmt: skip
+        for j, i in enumerate(tokens):
+            _resample(int(i), int(docs[i]), int(words[i]), expected, alpha, xi, vocab_size, float(uniforms[j]))
+        for got, want in zip(counts, expected, strict=True):
+            assert np.array_equal(got, want)
+        moved += int((counts[0] != before).sum())
+    assert moved > 0 or n_contexts == 1

@@ -220,7 +220,7 @@ def sweep_documents_by_lanes(
                 coefficient[new] = (n_dk[d, new] + alpha) * inverse[new]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def sample_tokens(
     tokens: np.ndarray,
     token_docs: np.ndarray,
@@ -238,36 +238,43 @@ def sample_tokens(
     """Resample the listed tokens in order (Eq. 5); a token with ``z < 0`` is unassigned
     and gets its first context from the counts of everything sampled before it.
 
-    Eq. 5's document denominator ``N_d + Kα`` is the same for every context and cancels;
-    ``inverse[k] = 1 / (n_k + |W|ξ)`` is kept up to date for the two contexts a token leaves
-    and joins. Written out like :func:`sweep_documents` (a helper per token halves the speed).
+    Eq. 5's document denominator ``N_d + Kα`` is the same for every context and cancels. As in
+    :func:`sweep_documents` (the comment above it, which gives the reasons and error_model): the
+    token's own context's term is written with its counts less one, ``inverse`` and ``below`` are
+    kept up to date, and the counts are written only when the token moves. Written out like
+    :func:`sweep_documents` (a helper per token halves the speed).
     """
     v_xi = vocab_size * xi
     inverse = _inverse_totals(n_k, n_contexts, v_xi)
+    below = _inverse_totals(n_k, n_contexts, v_xi, -1)
     cumulative = np.empty(n_contexts)
     for j in range(tokens.shape[0]):
         i = tokens[j]
         d = token_docs[j]
         w = words[i]
         old = z[i]
-        if old >= 0:
-            n_wk[w, old] -= 1
-            n_k[old] -= 1
-            n_dk[d, old] -= 1
-            inverse[old] = 1.0 / (n_k[old] + v_xi)
         total = 0.0
         for k in range(n_contexts):
-            total += (n_wk[w, k] + xi) * inverse[k] * (n_dk[d, k] + alpha)
+            if k == old:
+                total += ((n_wk[w, k] - 1) + xi) * below[k] * ((n_dk[d, k] - 1) + alpha)
+            else:
+                total += (n_wk[w, k] + xi) * inverse[k] * (n_dk[d, k] + alpha)
             cumulative[k] = total
         new = _draw(cumulative, n_contexts, uniforms[j])
+        if new == old:
+            continue
         z[i] = new
-        n_wk[w, new] += 1
-        n_k[new] += 1
-        n_dk[d, new] += 1
-        inverse[new] = 1.0 / (n_k[new] + v_xi)
+        if old >= 0:
+            _move_token(w, d, old, new, n_wk, n_k, n_dk, inverse, below, v_xi)
+        else:
+            n_wk[w, new] += 1
+            n_k[new] += 1
+            n_dk[d, new] += 1
+            below[new] = inverse[new]
+            inverse[new] = 1.0 / (n_k[new] + v_xi)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def fold_in(
     word_ids: np.ndarray,
     n_wk: np.ndarray,
@@ -285,7 +292,8 @@ def fold_in(
     concepts, added to the model's ``n_wk`` on the fly, so the result equals
     sampling the document into a copy of the model. The first ``burn_in`` sweeps
     are discarded; θ = (n_dk + α) / (N_d + Kα) is averaged over the remaining
-    sweeps (``uniforms`` holds one number per token per sweep).
+    sweeps (``uniforms`` holds one number per token per sweep). error_model="numpy" for the
+    reason the sweeps give: ``below_total`` of an empty context may divide by zero, and is never read.
     """
     n_tokens = word_ids.shape[0]
     order = np.argsort(word_ids)
@@ -318,26 +326,40 @@ def fold_in(
     cumulative = np.empty(n_contexts)
     theta = np.zeros(n_contexts)
     u_index = 0
+    below_total = np.empty(n_contexts)  # the reciprocal totals with one token taken out
+    for k in range(n_contexts):
+        below_total[k] = 1.0 / (context_total[k] - 1.0)
     for sweep in range(sweeps):
         for i in range(n_tokens):
+            # As in the sweeps (the comment above sweep_documents): the token's own context's term
+            # with it taken out, and the factors written only when it moves. Taking 1 off a factor
+            # that holds the token and adding it back is exact, so θ is that of taking every token
+            # out and putting it back, bit for bit.
             u = local_words[i]
             old = z[i]
+            total = 0.0
+            for k in range(n_contexts):
+                if k == old:
+                    total += (concept_weight[u, k] - 1.0) * below_total[k] * (document_weight[k] - 1.0)
+                else:
+                    total += concept_weight[u, k] * inverse_total[k] * document_weight[k]
+                cumulative[k] = total
+            new = _draw(cumulative, n_contexts, uniforms[u_index])
+            u_index += 1
+            if new == old:
+                continue
             if old >= 0:
                 concept_weight[u, old] -= 1.0
                 context_total[old] -= 1.0
                 inverse_total[old] = 1.0 / context_total[old]
+                below_total[old] = 1.0 / (context_total[old] - 1.0)
                 document_weight[old] -= 1.0
                 n_dk[old] -= 1
-            total = 0.0
-            for k in range(n_contexts):
-                total += concept_weight[u, k] * inverse_total[k] * document_weight[k]
-                cumulative[k] = total
-            new = _draw(cumulative, n_contexts, uniforms[u_index])
-            u_index += 1
             z[i] = new
             concept_weight[u, new] += 1.0
             context_total[new] += 1.0
             inverse_total[new] = 1.0 / context_total[new]
+            below_total[new] = 1.0 / (context_total[new] - 1.0)
             document_weight[new] += 1.0
             n_dk[new] += 1
         if sweep >= burn_in:

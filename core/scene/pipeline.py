@@ -25,7 +25,7 @@ The experiments' document of one recorded object (the paper's protocol, Table V)
 >>> from core.prototypes import fit_prototypes
 >>> from sim.world import World
 >>> world = World.paper(seed=7)
->>> train = world.train_objects
+>>> train = world.train_objects[::3]  # a third of them: every concept still has examples
 >>> features = [recording_features(world.record(obj, 7)) for obj in train]
 >>> prototypes = fit_prototypes(
 ...     world.vocabulary,

@@ -82,9 +82,16 @@ def browser(tmp_path: Path):
 
 
 def _wait(condition: Callable[[], object], what: str, timeout: float = 45.0) -> object:
+    """Poll ``condition`` until it is truthy. An element that the page re-rendered between finding it
+    and reading it (selenium's stale element) counts as not yet: the page is still changing."""
+    from selenium.common.exceptions import StaleElementReferenceException
+
     deadline = time.monotonic() + timeout
     while True:
-        value = condition()
+        try:
+            value = condition()
+        except StaleElementReferenceException:
+            value = None
         if value:
             return value
         if time.monotonic() > deadline:

@@ -48,6 +48,8 @@ class BirthRun:
     k_before: int
     """K when the late context first appeared."""
     delay: int | None
+    late_scenes: int | None
+    """Scenes of the late context learned when it was found (its first included), or None."""
     max_excess: int
     final_k: int
     contexts_present: int
@@ -83,7 +85,7 @@ def birth_run(scenario: str, seed: int, **hyperparameters: Any) -> BirthRun:
     scenes, truth, late = scenario_stream(scenario, seed)
     model = IncrementalLDA(seed=seed, **hyperparameters)
     seen: set[str] = set()
-    first_appearance, delay, max_excess, checks, k_before = -1, None, 0, 0, 0
+    first_appearance, delay, late_scenes, max_excess, checks, k_before = -1, None, None, 0, 0, 0
     started = time.perf_counter()
     for index, (words, context) in enumerate(zip(scenes, truth, strict=True)):
         if context == late and first_appearance < 0:
@@ -94,12 +96,14 @@ def birth_run(scenario: str, seed: int, **hyperparameters: Any) -> BirthRun:
         max_excess = max(max_excess, model.n_contexts - len(seen))
         if first_appearance >= 0 and delay is None and _found(model, truth, late, first_appearance, k_before):
             delay = index - first_appearance
+            late_scenes = truth[first_appearance : index + 1].count(late)
     return BirthRun(
         scenario=scenario,
         seed=seed,
         first_appearance=first_appearance,
         k_before=k_before,
         delay=delay,
+        late_scenes=late_scenes,
         max_excess=max_excess,
         final_k=model.n_contexts,
         contexts_present=len(seen),
@@ -138,11 +142,14 @@ def steady_run(scenario: str, seed: int, n_scenes: int = STEADY_SCENES) -> dict[
 def summary(runs: list[BirthRun]) -> dict[str, float | int]:
     """Median and worst delay (a miss counts as the rest of the stream), misses, runs with a false birth."""
     delays = [run.delay for run in runs if run.delay is not None]
+    late_scenes = [run.late_scenes for run in runs if run.late_scenes is not None]
     return {
         "runs": len(runs),
         "missed": sum(run.delay is None for run in runs),
         "median_delay": statistics.median(delays) if delays else float("nan"),
         "max_delay": max(delays) if delays else float("nan"),
+        "median_late_scenes": statistics.median(late_scenes) if late_scenes else float("nan"),
+        "max_late_scenes": max(late_scenes) if late_scenes else float("nan"),
         "false_births": sum(run.max_excess > 0 for run in runs),
         "growth_checks_mean": statistics.mean(run.growth_checks for run in runs),
         "seconds_mean": statistics.mean(run.seconds for run in runs),
@@ -169,7 +176,8 @@ def main() -> dict[str, Any]:
     (RESULTS / "context_birth.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
     for name, row in [*result["by_scenario"].items(), ("all", result["all"])]:
         print(
-            f"{name:>10}: delay median {row['median_delay']}, max {row['max_delay']}, missed {row['missed']}/"
+            f"{name:>10}: delay median {row['median_delay']}, max {row['max_delay']} (its own scenes: median "
+            f"{row['median_late_scenes']}, max {row['max_late_scenes']}), missed {row['missed']}/"
             f"{row['runs']}, runs with a false birth {row['false_births']}, growth checks {row['growth_checks_mean']:.1f}"
             f" per run, {row['seconds_mean']:.2f} s per run"
         )
@@ -182,7 +190,7 @@ def main() -> dict[str, Any]:
     for run in result["runs"]:
         print(
             f"  {run['scenario']:>10} seed {run['seed']}: appears {run['first_appearance']} at K {run['k_before']}, "
-            f"delay {run['delay']}, "
+            f"delay {run['delay']} ({run['late_scenes']} of its scenes), "
             f"max excess {run['max_excess']}, K {run['final_k']}/{run['contexts_present']}"
         )
     return result

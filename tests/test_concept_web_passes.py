@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from core.concept_web import ConceptWeb, loopy_belief_propagation
+from core.concept_web import DEFAULT_DAMPING, ConceptWeb, loopy_belief_propagation
 from core.errors import InvalidInputError
 from core.vocabulary import paper_vocabulary
 from sim.world import TRAIN, WorldConfig, make_objects
@@ -43,10 +43,11 @@ def test_without_marginals_the_map_is_the_same_and_the_marginals_are_missing(pap
 
 
 def test_the_kernels_unary_factors_are_the_documented_potentials(paper_web: ConceptWeb) -> None:
-    # infer builds Eq. 3's unaries in the kernel; potentials() builds them in numpy: the same MRF, bit for bit.
+    # infer builds Eq. 3's unaries in the kernel; potentials() builds them in numpy: the same MRF, bit for bit
+    # (at loopy_belief_propagation's one damping for both passes).
     rng = np.random.default_rng(2)
     for perception in (rng.random(len(PAPER)), np.round(rng.random(len(PAPER))), np.full(len(PAPER), 0.5)):
-        inference = paper_web.infer(perception)
+        inference = paper_web.infer(perception, damping=DEFAULT_DAMPING)
         marginals, max_marginals, iterations, converged = loopy_belief_propagation(paper_web.potentials(perception))
         np.testing.assert_array_equal(
             inference.probabilities, marginals[paper_web.concept_variable, paper_web.concept_state]

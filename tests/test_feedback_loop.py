@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from core.concept_web import DEFAULT_DAMPING
 from core.context import IncrementalLDA, feedback
 from core.context.feedback import context_concepts, contextual_feedback
 from core.errors import InvalidInputError
@@ -215,8 +216,8 @@ def test_webs_settled_beforehand_give_the_identical_result(world, web, context_m
 
 
 def _cold_damped_settle(web, evidence, applied, previous, **options):
-    """The loop's settling before warm starts and undamped passes: cold, ConceptWeb's default damping."""
-    return web.infer_many(evidence, applied=applied)
+    """The loop's settling before warm starts and undamped passes: cold, both passes damped."""
+    return web.infer_many(evidence, applied=applied, damping=DEFAULT_DAMPING)
 
 
 #: How far a settling at the default tolerance (1e-6 on messages) may be from its LBP fixed point's

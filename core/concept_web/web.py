@@ -44,6 +44,9 @@ DEFAULT_BETA = 4.0
 DEFAULT_PSEUDO_COUNT = 0.5
 #: Perception probabilities are clipped to [floor, 1 - floor], so ψ_C = -log P(c) ≤ 6.9.
 DEFAULT_PROBABILITY_FLOOR = 1e-3
+#: Damping of the max-product pass by default; the sum-product pass runs undamped
+#: (:meth:`ConceptWeb.infer`; docs/concept_web.md, "Inference").
+DEFAULT_DAMPING = 0.5
 
 _STATE_KEYS = ("concepts", "cooccurrence", "n_objects", "beta", "pseudo_count", "probability_floor")
 
@@ -224,7 +227,7 @@ def _pass_settings(
     max_product: tuple[float, int] | None,
 ) -> tuple[np.ndarray, float, np.ndarray]:
     """Validated (damping (2,), tolerance, max_iterations (2,)) of the sum- and max-product passes
-    (read-only arrays), memoised: a caller settles with the same few settings again and again."""
+    (read-only arrays; :func:`_validated_pass_settings`), memoised: a caller settles with the same few settings again and again."""
     if sum_product is None and max_product is None:  # the common case, without building pairs
         try:
             return _memoised_pass_settings(damping, tolerance, max_iterations, None, None, None, None)
@@ -262,6 +265,12 @@ def _validated_pass_settings(
     sum_product: tuple[float, int] | None,
     max_product: tuple[float, int] | None,
 ) -> tuple[np.ndarray, float, np.ndarray]:
+    """``damping`` None is the default: the sum-product pass undamped (unless ``sum_product``
+    sets it), the max-product pass at :data:`DEFAULT_DAMPING`."""
+    if damping is None:
+        damping = DEFAULT_DAMPING
+        if sum_product is None:
+            sum_product = (0.0, max_iterations)
     damping = _checks.real(damping, "damping", low=0.0, high=1.0, high_open=True)
     tolerance = _checks.real(tolerance, "tolerance", low=0.0, low_open=True)
     max_iterations = _checks.count(max_iterations, "max_iterations", minimum=1)
@@ -445,7 +454,7 @@ class ConceptWeb:
         perception: np.ndarray,
         *,
         applied: np.ndarray | None = None,
-        damping: float = 0.5,
+        damping: float | None = None,
         tolerance: float = 1e-6,
         max_iterations: int = 100,
     ) -> WebInference:
@@ -456,6 +465,13 @@ class ConceptWeb:
         whatever its perception value and only *receives* messages, so its
         probability is the web's prediction of that affordance and it does not
         feed back into the web. ``None`` takes every verb's value as evidence.
+
+        ``damping`` None (the default): the sum-product pass runs undamped and the max-product
+        pass at :data:`DEFAULT_DAMPING`; a number damps both. Damping changes the path, not the
+        fixed points: undamped, the sum-product pass settles the paper's web in fewer than half
+        the iterations, and settles more of the hardest evidence; the max-product pass keeps its
+        damping because undamped it lands on other fixed points (other MAPs) more often
+        (docs/concept_web.md, "Inference", has the measurements).
         """
         return self._infer(
             *self._check_perception(perception, applied, batched=False), damping, tolerance, max_iterations
@@ -466,7 +482,7 @@ class ConceptWeb:
         perceptions: np.ndarray,
         *,
         applied: np.ndarray | None = None,
-        damping: float = 0.5,
+        damping: float | None = None,
         tolerance: float = 1e-6,
         max_iterations: int = 100,
         start: Sequence[WebInference] | None = None,
@@ -530,7 +546,7 @@ class ConceptWeb:
         self,
         perceptions: np.ndarray,
         applied: np.ndarray | None,
-        damping: float,
+        damping: float | None,
         tolerance: float,
         max_iterations: int,
         start: np.ndarray | None = None,

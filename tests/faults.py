@@ -456,7 +456,10 @@ def _close(sock: socket.socket) -> None:
 
 # --------------------------------------------------------------------------- clients
 
-RETRYABLE_ERRORS = frozenset({"storage_unavailable", "model_unavailable"})
+#: The 503s of the contract (docs/api.md): the database cannot take a write, the model is being
+#: reloaded, or a write waited out the database's lock timeout behind another (a frozen or slow peer
+#: process): each with Retry-After, each retried by the clients.
+RETRYABLE_ERRORS = frozenset({"storage_unavailable", "model_unavailable", "storage_busy"})
 
 
 @dataclass
@@ -607,7 +610,7 @@ class KeyedClient:
             and "field" in body
             and body["field"] is None
         ):
-            self.problems.append(f"{key}: 503 body is not a storage/model-unavailable error: {response.text[:200]}")
+            self.problems.append(f"{key}: 503 body is not one of {sorted(RETRYABLE_ERRORS)}: {response.text[:200]}")
         try:
             return float(retry_after) if retry_after is not None else None
         except ValueError:

@@ -136,25 +136,34 @@ def test_queue_bounded_in_bytes_but_one_write_may_always_wait() -> None:
 
 def test_rate_limited_writes_through_the_app(tmp_path: Path, request: pytest.FixtureRequest) -> None:
     url = migrated_database("sqlite", request, tmp_path)
-    settings = make_settings(url, rate_limit_per_second=0.5, rate_limit_burst=3)
-    scenes = concept_scenes(5, seed=3)
+    rate, burst = 0.5, 3
+    settings = make_settings(url, rate_limit_per_second=rate, rate_limit_burst=burst)
+    scenes = concept_scenes(12, seed=3)
     with TestClient(create_app(settings)) as client:
         model_id = client.post("/v1/models", json={"name": "rate", "hyperparameters": FAST_HYPERPARAMETERS}).json()
         model_id = model_id["id"]  # creating a model is not a model write: no token taken
         started = time.monotonic()  # the bucket, full (3 tokens), refills 0.5 a second from its first write
-        for body in scenes[:3]:
+        accepted = 0
+        for body in scenes[:burst]:
             assert client.post(f"/v1/models/{model_id}/scenes", json=body).status_code == 201
-        refused = client.post(f"/v1/models/{model_id}/scenes", json=scenes[3])
+            accepted += 1
+        # On a loaded machine the writes take long enough for the bucket to refill a token or more
+        # (seen in make test): those writes are accepted too, until the bucket is empty.
+        for body in scenes[burst:]:
+            refused = client.post(f"/v1/models/{model_id}/scenes", json=body)
+            if refused.status_code != 201:
+                break
+            accepted += 1
         elapsed = time.monotonic() - started
         assert refused.status_code == 429, refused.text
         assert refused.json()["error"] == "rate_limited"
         assert set(refused.json()) == {"error", "detail", "field"}
-        # The next token is due 2 s after the first write less the refill since: on a slow machine the
-        # three writes take long enough that 1 s is the honest answer (seen once in make test).
-        assert max(1, math.ceil(2 - elapsed)) <= int(refused.headers["Retry-After"]) <= 2
-        assert client.get(f"/v1/models/{model_id}").json()["scene_count"] == 3  # reads are not limited
+        # No more writes than the burst and what refilled meanwhile; the next token is due within 1 / rate.
+        assert burst <= accepted <= burst + math.floor(rate * elapsed), (accepted, elapsed)
+        assert 1 <= int(refused.headers["Retry-After"]) <= math.ceil(1 / rate)
+        assert client.get(f"/v1/models/{model_id}").json()["scene_count"] == accepted  # reads are not limited
         time.sleep(int(refused.headers["Retry-After"]))
-        assert client.post(f"/v1/models/{model_id}/scenes", json=scenes[3]).status_code == 201
+        assert client.post(f"/v1/models/{model_id}/scenes", json=scenes[accepted]).status_code == 201
 
 
 def test_full_queue_is_model_busy_and_other_models_still_write(tmp_path: Path, request: pytest.FixtureRequest) -> None:

@@ -227,7 +227,8 @@ def _pass_settings(
     max_product: tuple[float, int] | None,
 ) -> tuple[np.ndarray, float, np.ndarray]:
     """Validated (damping (2,), tolerance, max_iterations (2,)) of the sum- and max-product passes
-    (read-only arrays; :func:`_validated_pass_settings`), memoised: a caller settles with the same few settings again and again."""
+    (read-only arrays; :func:`_validated_pass_settings`), memoised: a caller settles with the
+    same few settings again and again."""
     if sum_product is None and max_product is None:  # the common case, without building pairs
         try:
             return _memoised_pass_settings(damping, tolerance, max_iterations, None, None, None, None)
@@ -286,7 +287,7 @@ def _validated_pass_settings(
 
 
 def loopy_belief_propagation(
-    potentials: WebPotentials, *, damping: float = 0.5, tolerance: float = 1e-6, max_iterations: int = 100
+    potentials: WebPotentials, *, damping: float = DEFAULT_DAMPING, tolerance: float = 1e-6, max_iterations: int = 100
 ) -> tuple[np.ndarray, np.ndarray, int, bool]:
     """Sum-product marginals and max-product max-marginals (both (n_var, K)) of any pairwise MRF.
 
@@ -501,8 +502,9 @@ class ConceptWeb:
         per object) gives its max-product messages (uniform for an inference that has
         none): started elsewhere than uniform it can settle on another of its fixed
         points, which changes the MAP configuration (docs/concept_web.md measures how
-        often). ``sum_product`` and ``max_product`` = (damping, max_iterations) of one
-        pass when they differ from ``damping`` and ``max_iterations``. ``marginals``
+        often). ``damping`` as in :meth:`infer` (None: the sum-product pass undamped, the
+        max-product pass at :data:`DEFAULT_DAMPING`). ``sum_product`` and ``max_product`` =
+        (damping, max_iterations) of one pass when they differ from those. ``marginals``
         false skips the sum-product pass (``probabilities`` NaN, ``messages`` None)
         for a caller that needs only the MAP configuration.
         """

@@ -52,6 +52,7 @@ from app.errors import ModelBusy, RateLimited, error_response
 from app.settings import Settings
 
 T = TypeVar("T")
+R = TypeVar("R")
 
 #: Longest Retry-After answered (seconds): a longer estimate is no better a hint.
 MAX_RETRY_AFTER_SECONDS = 60
@@ -98,6 +99,7 @@ class Admission:
         rate_per_second: float = 0.0,
         rate_burst: int = 1,
         write_threads: int = 4,
+        scene_threads: int = 4,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.model_write_queue = model_write_queue
@@ -111,6 +113,9 @@ class Admission:
         """Threads the admitted writes of every model share, apart from the routes' pool: writes to
         many models wait on the loop for one, not on the database's write lock in a thread that a
         read needs."""
+        self.scene_threads = anyio.CapacityLimiter(scene_threads)
+        """Threads that learn scenes (:meth:`run_scene`), apart from the other writes' (docs/scaling.md,
+        "One scene at a time in a process")."""
         self.probe_threads = anyio.CapacityLimiter(PROBE_THREADS)
         """Threads of ``/readyz`` apart from the routes' pool: a probe never waits behind blocked writes."""
         self._buckets: OrderedDict[str, _Bucket] = OrderedDict()
@@ -133,6 +138,25 @@ class Admission:
         the next write waits for it."""
         async with self._admitted(model_id, body_bytes):
             return await anyio.to_thread.run_sync(work, *args, limiter=self.write_threads)
+
+    async def run_scene(
+        self,
+        model_id: str,
+        read: Callable[[], R],
+        learn: Callable[[R], T],
+        *,
+        heavy: bool,
+        body_bytes: int = 0,
+    ) -> T:
+        """A scene write, admitted as :meth:`run_write` admits one: ``learn(read())`` on a thread of
+        :attr:`scene_threads`; a ``heavy`` scene (raw payloads: feature extraction in GIL-free kernels,
+        seconds for the largest) is ``read`` first on any write thread, so that it never holds a
+        scene thread that the process's other models wait for."""
+        async with self._admitted(model_id, body_bytes):
+            if heavy:
+                read_scene = await anyio.to_thread.run_sync(read, limiter=self.write_threads)
+                return await anyio.to_thread.run_sync(learn, read_scene, limiter=self.scene_threads)
+            return await anyio.to_thread.run_sync(lambda: learn(read()), limiter=self.scene_threads)
 
     def refusal(self, model_id: str, body_bytes: int) -> ModelBusy | None:
         """The 429 a write of ``body_bytes`` to ``model_id`` would get now, or None."""
@@ -211,6 +235,7 @@ def admission_of(settings: Settings) -> Admission:
         rate_per_second=settings.rate_limit_per_second,
         rate_burst=settings.rate_limit_burst,
         write_threads=settings.write_threads,
+        scene_threads=settings.resolved_scene_threads,
     )
 
 

@@ -73,6 +73,12 @@ class Settings(BaseSettings):
         ge=1,
         description="Threads the admitted model writes share, apart from `worker_threads` (docs/operations.md).",
     )
+    scene_threads: int | None = Field(
+        None,
+        ge=1,
+        description="Threads that learn scenes at once, apart from the write threads (which extract a raw scene's "
+        "features first); unset: 1 on SQLite, `write_threads` on PostgreSQL (docs/scaling.md).",
+    )
     worker_threads: int = Field(16, ge=1, description="Threads running the blocking routes (numba, database).")
     model_write_queue: int = Field(
         32, ge=0, le=10_000, description="Writes a model keeps waiting behind the one in progress; more is a 429."
@@ -128,6 +134,14 @@ class Settings(BaseSettings):
     @property
     def resolved_database_url(self) -> str:
         return self.database_url or DEFAULT_DATABASE_URL
+
+    @property
+    def resolved_scene_threads(self) -> int:
+        """``scene_threads``, else 1 on SQLite (its write lock is the database's: a second scene thread of
+        a process could only wait for it, and slowed the one holding it; docs/scaling.md), else ``write_threads``."""
+        if self.scene_threads is not None:
+            return self.scene_threads
+        return 1 if self.resolved_database_url.startswith("sqlite") else self.write_threads
 
     @property
     def auth_enabled(self) -> bool:

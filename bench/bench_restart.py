@@ -104,7 +104,8 @@ def build(
                     if i:
                         write.version += 1  # one version per scene, as the service gives them
                     key = f"{learned:032x}" if keyed else None
-                    prepared = scene_service.prepare_scene(model, bodies[learned % len(bodies)], key)
+                    read = scene_service.read_scene(model, bodies[learned % len(bodies)], key)
+                    prepared = scene_service.prepare_scene(model, read)
                     scene_service.learn_scene(write.session, model, write.version, prepared, key)
                     learned += 1
                 write.version_saved = True

@@ -108,6 +108,60 @@ def test_one_write_per_model_at_a_time_bounded_queue_and_other_models_unaffected
     assert all(error.retry_after >= 1 and error.headers()["Retry-After"] for error in refused)
 
 
+def test_scene_threads_bound_the_scenes_learned_at_once_and_a_heavy_read_holds_none() -> None:
+    """``run_scene``: with one scene thread, the scenes of 4 models are learned one at a time (with
+    two, two overlap: the check can fail); a heavy scene's read (a raw scene's feature extraction)
+    runs on a write thread, so while it blocks, another model's scene is learned."""
+    lock = threading.Lock()
+    learning: list[str] = []
+    most = 0
+
+    def learn(read: str) -> str:
+        nonlocal most
+        with lock:
+            learning.append(read)
+            most = max(most, len(learning))
+        time.sleep(0.05)
+        with lock:
+            learning.remove(read)
+        return f"learned {read}"
+
+    async def concurrent_scenes(scene_threads: int) -> list[str]:
+        admission = Admission(model_write_queue=4, scene_threads=scene_threads)
+        scenes = [admission.run_scene(model, lambda model=model: model, learn, heavy=False) for model in "ABCD"]
+        return list(await asyncio.gather(*scenes))
+
+    assert asyncio.run(concurrent_scenes(1)) == ["learned A", "learned B", "learned C", "learned D"]
+    assert most == 1
+    most = 0
+    asyncio.run(concurrent_scenes(2))
+    assert most == 2
+
+    extracted = threading.Event()
+
+    def heavy_read() -> str:
+        extracted.wait(10)
+        return "raw"
+
+    async def heavy_beside_light() -> tuple[str, bool, str]:
+        admission = Admission(model_write_queue=4, scene_threads=1)
+        heavy = asyncio.create_task(admission.run_scene("A", heavy_read, learn, heavy=True))
+        await asyncio.sleep(0.1)
+        light = await asyncio.wait_for(admission.run_scene("B", lambda: "concepts", learn, heavy=False), 5)
+        still_reading = not heavy.done()
+        extracted.set()
+        return light, still_reading, await heavy
+
+    assert asyncio.run(heavy_beside_light()) == ("learned concepts", True, "learned raw")
+
+
+def test_scene_threads_default_to_one_on_sqlite_only() -> None:
+    assert make_settings("sqlite:///unused.sqlite3").resolved_scene_threads == 1
+    postgres = make_settings("postgresql+psycopg://localhost/unused", write_threads=3)
+    assert postgres.resolved_scene_threads == 3
+    assert make_settings("sqlite:///unused.sqlite3", scene_threads=2).resolved_scene_threads == 2
+
+
 def test_queue_bounded_in_bytes_but_one_write_may_always_wait() -> None:
     release = threading.Event()
 

@@ -22,7 +22,7 @@ from app.services.perception import (
     analyse_objects,
     reported,
 )
-from app.services.scenes import PreparedScene, learn_scene, prepare_scene
+from app.services.scenes import PreparedScene, learn_scene, prepare_scene, read_scene
 from app.state import AppState
 from core.concept_web import ConceptWeb, WebInference
 from sim.world import World
@@ -243,13 +243,13 @@ def test_feedback_prepared_before_the_write_is_used_only_while_memory_stands_whe
         return json.loads(answer)
 
     stale_model, fresh_model = models
-    stale = prepare_scene(stale_model, later, None)  # then another write changes memory
+    stale = prepare_scene(stale_model, read_scene(stale_model, later, None))  # then another write changes memory
     assert stale.analysis is not None and stale.contextual is not None
     assert stale.in_context_for(stale_model, stale.analysis) is stale.contextual
-    learn(stale_model, prepare_scene(stale_model, earlier, None))
+    learn(stale_model, prepare_scene(stale_model, read_scene(stale_model, earlier, None)))
     stale_answer = learn(stale_model, stale)
-    learn(fresh_model, prepare_scene(fresh_model, earlier, None))
-    fresh_answer = learn(fresh_model, prepare_scene(fresh_model, later, None))
+    learn(fresh_model, prepare_scene(fresh_model, read_scene(fresh_model, earlier, None)))
+    fresh_answer = learn(fresh_model, prepare_scene(fresh_model, read_scene(fresh_model, later, None)))
     assert stale_answer["objects"] == fresh_answer["objects"]
     assert stale_answer["context_posterior"] == fresh_answer["context_posterior"]
     # The check can fail: the feedback computed before the other write differs from the answer's.

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Path, Query, Response, status
@@ -69,18 +70,22 @@ async def post_scene(
     body_bytes: BodySizeDep,
     idempotency_key: IdempotencyKey = None,
 ) -> Response:
-    answer, replayed = await admission.run_write(
-        model.id, _learn_scene, state, model, body, idempotency_key, body_bytes=body_bytes
+    answer, replayed = await admission.run_scene(
+        model.id,
+        partial(scene_service.read_scene, model, body, idempotency_key),
+        partial(_learn_scene, state, model, idempotency_key),
+        heavy=any(obj.raw is not None for obj in body.objects),
+        body_bytes=body_bytes,
     )
     headers = {"Idempotent-Replayed": "true"} if replayed else None
     return Response(answer, status.HTTP_201_CREATED, headers, media_type="application/json")
 
 
 def _learn_scene(
-    state: AppState, model: ModelRuntime, body: SceneCreate, idempotency_key: str | None
+    state: AppState, model: ModelRuntime, idempotency_key: str | None, read: scene_service.ReadScene
 ) -> tuple[str, bool]:
-    """On the admitted worker thread: perception before the model's lock, the learning under it."""
-    prepared = scene_service.prepare_scene(model, body, idempotency_key)
+    """On the admitted scene thread: perception before the model's lock, the learning under it."""
+    prepared = scene_service.prepare_scene(model, read)
     with model_write(state, model) as write:
         answer, replayed = scene_service.learn_scene(
             write.session, model, write.version, prepared, idempotency_key, state.metrics

@@ -48,8 +48,10 @@ __all__ = [
     "check_behaviours",
     "feature_vectors",
     "in_context",
+    "perceive_objects",
     "raw_feature_vectors",
     "reported",
+    "scene_objects",
 ]
 
 PayloadT = TypeVar("PayloadT")
@@ -81,8 +83,18 @@ class SceneAnalysis:
 def analyse_objects(perception: Perception, objects: Sequence[SceneObject], model_id: str) -> SceneAnalysis:
     """Perception, concept web and active concepts of every object of a scene (``core.scene.perceive_scene``).
     Every object is checked (and a raw one's features extracted) before any is perceived."""
-    core_objects = [_core_object(perception, obj, f"objects[{i}]", model_id) for i, obj in enumerate(objects)]
-    return _answered(perception.vocabulary, perceive_scene(perception, core_objects))
+    return perceive_objects(perception, scene_objects(perception, objects, model_id))
+
+
+def scene_objects(perception: Perception, objects: Sequence[SceneObject], model_id: str) -> list[CoreObject]:
+    """Every object of a scene checked against ``perception`` and made core's: a raw one's features
+    extracted (Table III; the GIL-free kernels of ``core.features``, the heavy part of a raw scene)."""
+    return [_core_object(perception, obj, f"objects[{i}]", model_id) for i, obj in enumerate(objects)]
+
+
+def perceive_objects(perception: Perception, objects: Sequence[CoreObject]) -> SceneAnalysis:
+    """Perception, concept web and active concepts of the objects of :func:`scene_objects`."""
+    return _answered(perception.vocabulary, perceive_scene(perception, objects))
 
 
 def in_context(

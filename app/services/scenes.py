@@ -2,11 +2,14 @@
 
 Learning a scene:
 
-1. :func:`prepare_scene`, before the model's write lock (app/deps.py
-   ``model_write``): the objects' concept webs (app/services/perception.py; for
-   raw payloads the feature extraction, seconds for the largest bodies) and the
-   body's hash — no database work, nothing of the model changed, so no other
-   request waits for it. It runs against the model's perception read once: a
+1. :func:`read_scene`, before any lock: the body's hash and its objects checked
+   and made core's (for raw payloads the feature extraction, seconds for the
+   largest bodies, in GIL-free kernels: so one raw scene never delays this
+   process's other writes); then, in this process's write turn on SQLite (app/deps.py
+   ``reserved_write_turn``: one scene of the process at a time from here to its
+   commit, docs/scaling.md) and before the model's write lock (``model_write``),
+   :func:`prepare_scene`: the objects' concept webs (app/services/perception.py) —
+   no database work, nothing of the model changed. Both run against the model's perception read once: a
    fit (or a catch-up or reload) replaces the perception whole, and
    :func:`learn_scene` redoes the analysis under the lock if it was replaced
    meanwhile (rare, and cheap next to the fit that caused it); and, if the
@@ -45,9 +48,19 @@ from app.registry import ModelRuntime, jsonable
 from app.schemas.common import Page
 from app.schemas.scenes import ObjectAnalysis, SceneCreate, SceneRead, SceneSummary
 from app.services.limits import check_vocabulary_growth
-from app.services.perception import ObjectResult, Perception, SceneAnalysis, analyse_objects, in_context, reported
+from app.services.perception import (
+    ObjectResult,
+    Perception,
+    SceneAnalysis,
+    analyse_objects,
+    in_context,
+    perceive_objects,
+    reported,
+    scene_objects,
+)
 from core.context.incremental import SceneUpdate
 from core.errors import InvalidInputError
+from core.scene import SceneObject as CoreObject
 from storage.database import pipelined
 from storage.repositories import contexts as context_repository
 from storage.repositories import feed as feed_repository
@@ -55,6 +68,20 @@ from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import scenes as scene_repository
 from storage.repositories.incremental_lda import SceneChanges, StoredCheckpoint
 from storage.unit_of_work import after_commit
+
+
+@dataclass(frozen=True)
+class ReadScene:
+    """A scene's body checked and made core's (:func:`read_scene`), waiting for :func:`prepare_scene`."""
+
+    body: SceneCreate
+    request_hash: bytes | None
+    """SHA-256 digest of the body, for a keyed scene only (stored, for its retries to match)."""
+    perception: Perception
+    """The perception the objects were checked against."""
+    objects: list[CoreObject] | None
+    refusal: ContextwebError | InvalidInputError | None
+    """The body's refusal (a 4xx), kept for :func:`learn_scene` to raise after the replay check."""
 
 
 @dataclass(frozen=True)
@@ -92,22 +119,37 @@ class PreparedScene:
         return in_context(model.perception, model.incremental_lda, analysis, sigma=model.sigma, seed=model.seed)
 
 
-def prepare_scene(model: ModelRuntime, body: SceneCreate, idempotency_key: str | None) -> PreparedScene:
-    """Perception and concept webs of ``body`` (and its hash if it is keyed), without the model's lock: changes
+def read_scene(model: ModelRuntime, body: SceneCreate, idempotency_key: str | None) -> ReadScene:
+    """``body``'s hash if it is keyed, and its objects checked against the model's perception and made
+    core's (a raw object's features extracted), without any lock. A refusal is kept, not raised:
+    a retried scene's stored answer (Idempotency-Key) wins over it, as when the analysis ran under the lock."""
+    perception = model.perception
+    request_hash = None if idempotency_key is None else hashlib.sha256(body.model_dump_json().encode()).digest()
+    try:
+        objects = scene_objects(perception, body.objects, model.id)
+    except (ContextwebError, InvalidInputError) as refusal:
+        return ReadScene(body, request_hash, perception, None, refusal)
+    return ReadScene(body, request_hash, perception, objects, None)
+
+
+def prepare_scene(model: ModelRuntime, read: ReadScene) -> PreparedScene:
+    """Perception and concept webs of the scene :func:`read_scene` read, without the model's lock: changes
     nothing, so that one heavy scene never holds the lock that the model's other requests wait for.
-    A refusal is kept, not raised: a retried scene's stored answer (Idempotency-Key) wins over it,
-    as when the analysis ran under the lock.
+    A refusal is kept, not raised (:func:`read_scene`).
 
     Then, if the model's lock is free, Eq. 6's feedback against memory as it stands, before the
-    database's write lock: on SQLite that lock is the whole database's, and the feedback was two
+    database's write lock: on SQLite that lock is the whole database's (other processes' writes
+    wait for it; this process's wait for its reserved turn anyway), and the feedback was two
     fifths of a scene's GIL time under the locks (py-spy, PostgreSQL; docs/benchmarks.md). :meth:`PreparedScene.in_context_for`
     uses it only if memory is still at the same version when the write holds both locks (no write
     of this process, catch-up or reload came between), so the answer is the one computed under
     the lock; when the lock is taken, a write of the model is under way and the feedback waits."""
-    perception = model.perception
-    request_hash = None if idempotency_key is None else hashlib.sha256(body.model_dump_json().encode()).digest()
+    body, request_hash, perception = read.body, read.request_hash, read.perception
+    if read.refusal is not None:
+        return PreparedScene(body, request_hash, perception, None, read.refusal)
+    assert read.objects is not None
     try:
-        analysis = analyse_objects(perception, body.objects, model.id)
+        analysis = perceive_objects(perception, read.objects)
     except (ContextwebError, InvalidInputError) as refusal:
         return PreparedScene(body, request_hash, perception, None, refusal)
     if not model.lock.acquire(blocking=False):  # a write of the model is under way: it will change memory

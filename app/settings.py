@@ -12,7 +12,7 @@ from typing import Literal
 from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from storage.database import DEFAULT_DATABASE_URL
+from storage.database import DEFAULT_DATABASE_URL, is_sqlite
 
 LOOPBACK_HOSTS = frozenset({"127.0.0.1", "::1", "localhost"})
 
@@ -141,7 +141,7 @@ class Settings(BaseSettings):
         a process could only wait for it, and slowed the one holding it; docs/scaling.md), else ``write_threads``."""
         if self.scene_threads is not None:
             return self.scene_threads
-        return 1 if self.resolved_database_url.startswith("sqlite") else self.write_threads
+        return 1 if is_sqlite(self.resolved_database_url) else self.write_threads
 
     @property
     def auth_enabled(self) -> bool:

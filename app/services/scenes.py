@@ -4,10 +4,10 @@ Learning a scene:
 
 1. :func:`read_scene`, before any lock: the body's hash and its objects checked
    and made core's (for raw payloads the feature extraction, seconds for the
-   largest bodies, in GIL-free kernels: so one raw scene never delays this
-   process's other writes); then, in this process's write turn on SQLite (app/deps.py
-   ``reserved_write_turn``: one scene of the process at a time from here to its
-   commit, docs/scaling.md) and before the model's write lock (``model_write``),
+   largest bodies, in GIL-free kernels, on a write thread: so one raw scene never
+   holds the scene thread of this process's other models); then, on the scene
+   thread (app/admission.py ``Admission.run_scene``: one per process on SQLite,
+   docs/scaling.md) and before the model's write lock (app/deps.py ``model_write``),
    :func:`prepare_scene`: the objects' concept webs (app/services/perception.py) —
    no database work, nothing of the model changed. Both run against the model's perception read once: a
    fit (or a catch-up or reload) replaces the perception whole, and
@@ -139,7 +139,7 @@ def prepare_scene(model: ModelRuntime, read: ReadScene) -> PreparedScene:
 
     Then, if the model's lock is free, Eq. 6's feedback against memory as it stands, before the
     database's write lock: on SQLite that lock is the whole database's (other processes' writes
-    wait for it; this process's wait for its reserved turn anyway), and the feedback was two
+    wait for it; on SQLite this process's other scenes wait for its scene thread anyway), and the feedback was two
     fifths of a scene's GIL time under the locks (py-spy, PostgreSQL; docs/benchmarks.md). :meth:`PreparedScene.in_context_for`
     uses it only if memory is still at the same version when the write holds both locks (no write
     of this process, catch-up or reload came between), so the answer is the one computed under

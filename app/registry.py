@@ -562,7 +562,8 @@ def _counts(words: np.ndarray, contexts: np.ndarray, n_contexts: int, n_words: i
 def catch_up(session: Session, writer: ModelWriter) -> bool:
     """Bring the model to the stored version from the rows written since its own (in one snapshot, or
     under the model's write lock); False when the model is gone. A model so far behind that the
-    batches it needs were folded into a checkpoint is reloaded from that snapshot instead. Raises
+    batches it needs were folded into a checkpoint, or that a newer checkpoint is cheaper to load than
+    those batches are to replay (``lda_repository.reload_is_cheaper``), is reloaded from that snapshot instead. Raises
     what the load would: an error here leaves memory unproven, and the caller has the writer undo it."""
     try:
         changes = lda_repository.load_changes(

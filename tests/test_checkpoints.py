@@ -207,6 +207,32 @@ def test_a_server_behind_the_compacted_batches_reloads_and_one_within_an_interva
         _same_state(_memory(follower, model_id), _memory(writer, model_id))
 
 
+def test_a_server_far_behind_a_newer_checkpoint_reloads_when_that_is_cheaper_than_replaying(
+    database_url: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A follower whose missing versions a newer checkpoint covers, more of them than a reload costs
+    (``reload_is_cheaper``: 900 versions, a checkpoint of a few thousand tokens), reloads although the
+    batches are all kept (no compaction yet); its memory equals the writer's bit for bit. The same
+    follower a few scenes behind that checkpoint later catches up from the batches."""
+    interval = 900
+    settings = make_settings(database_url, checkpoint_interval=interval)
+    scenes = concept_scenes(interval + 10, seed=6)
+    with TestClient(create_app(settings)) as writer, TestClient(create_app(settings)) as follower:
+        model_id = _create(writer)
+        assert follower.get(f"/v1/models/{model_id}/contexts").status_code == 200  # follows before any scene
+        _post(writer, model_id, scenes[: interval + 5])  # the checkpoint after scene 900, nothing compacted
+        with caplog.at_level("INFO", logger="contextweb"):
+            assert follower.get(f"/v1/models/{model_id}/contexts").status_code == 200
+        assert any("cheaper than replaying" in record.getMessage() for record in caplog.records)
+        _same_state(_memory(follower, model_id), _memory(writer, model_id))
+        caplog.clear()
+        _post(writer, model_id, scenes[interval + 5 :])
+        with caplog.at_level("INFO", logger="contextweb"):
+            assert follower.get(f"/v1/models/{model_id}/contexts").status_code == 200
+        assert not any("reloading it from its checkpoint" in record.getMessage() for record in caplog.records)
+        _same_state(_memory(follower, model_id), _memory(writer, model_id))
+
+
 def test_small_packed_arrays_round_trip_narrow_and_short_and_damage_is_refused() -> None:
     arrays = [np.zeros(0, dtype=np.int64), np.array([0, 3, 255]), np.array([0, 256, 70_000]), np.arange(200) % 3]
     blob = pack_small_arrays(arrays)

@@ -266,6 +266,18 @@ def test_bad_scenes_name_the_field() -> None:
     assert model.n_scenes == 0
 
 
+@pytest.mark.parametrize("words", [["cup", ""], ["cup", ["plate"]], ["cup", 3], "cup", [], ("cup", None)])
+def test_a_model_that_knows_the_words_still_refuses_a_bad_scene_to_infer(words: object) -> None:
+    """infer_scene validates a scene in the same pass that looks its words up when it knows
+    them all; a bad entry beside known ones must still be refused by name, not ignored."""
+    model = IncrementalLDA(["cup", "plate"], seed=0)
+    model.learn_scene(["cup", "plate"])
+    with pytest.raises(InvalidInputError, match="^words"):
+        model.infer_scene(words)  # type: ignore[arg-type]
+    assert np.array_equal(model.infer_scene(("cup", "plate")), model.infer_scene(["cup", "plate"]))
+    assert np.array_equal(model.infer_scene(["cup", "mug"]), model.infer_scene(["cup"]))
+
+
 def test_corrupted_state_is_refused() -> None:
     model = IncrementalLDA(seed=0, **ONLINE)
     _learn_online(model, _paper_scenes(5, 0))

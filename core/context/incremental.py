@@ -245,7 +245,6 @@ class IncrementalLDA:
         Concepts the model has never seen carry no evidence and are ignored; a scene of
         only such concepts gets the uniform prior.
         """
-        words = _scene_words(words)
         uniforms = SeededUniforms(_validated_seed(seed))
         known = self._known_ids(words)
         if known.shape[0] == 0:
@@ -253,14 +252,20 @@ class IncrementalLDA:
         sampler = self.hyperparameters.sampler
         return self._state.fold_in(known, uniforms, sampler.inference_sweeps, sampler.inference_burn_in)
 
-    def _known_ids(self, words: Sequence[str]) -> np.ndarray:
-        """The model ids of ``words`` in order, leaving out the words it has never seen; in one
-        pass through C when it knows them all (the common case, half the time of a filter)."""
+    def _known_ids(self, words: Any) -> np.ndarray:
+        """The model ids of the scene ``words`` in order, leaving out the words it has never seen,
+        after validating the scene (``_scene_words``). When the model knows every word (the common
+        case) one pass of dict lookups in C does both, and costs half a filter: every key is a
+        non-empty ``str``, so a word found is a valid one (a fold-in of a 5-object scene spent 2.7 of
+        its 24 µs on the separate check)."""
         index = self._index
-        try:
-            return np.fromiter(map(index.__getitem__, words), dtype=np.int32, count=len(words))
-        except KeyError:
-            return np.fromiter((index[w] for w in words if w in index), dtype=np.int32)
+        if type(words) in (list, tuple) and words:
+            try:
+                return np.fromiter(map(index.__getitem__, words), dtype=np.int32, count=len(words))
+            except (KeyError, TypeError):  # an unknown word, or one that is not a valid name at all
+                pass
+        words = _scene_words(words)
+        return np.fromiter((index[w] for w in words if w in index), dtype=np.int32)
 
     def context_posterior(self, scene: Sequence[str] | int, *, seed: int = 0) -> np.ndarray:
         """P(χ | scene), (K,): a learned scene by index (its θ), or an unseen one by its concepts."""

@@ -267,13 +267,17 @@ def test_bad_scenes_name_the_field() -> None:
 
 
 @pytest.mark.parametrize("words", [["cup", ""], ["cup", ["plate"]], ["cup", 3], "cup", [], ("cup", None)])
-def test_a_model_that_knows_the_words_still_refuses_a_bad_scene_to_infer(words: object) -> None:
-    """infer_scene validates a scene in the same pass that looks its words up when it knows
-    them all; a bad entry beside known ones must still be refused by name, not ignored."""
+def test_a_model_that_knows_the_words_still_refuses_a_bad_scene(words: object) -> None:
+    """infer_scene and learn_scene validate a scene in the same pass that looks its words up when
+    the model knows them all; a bad entry beside known ones must still be refused by name, not
+    ignored, and nothing is learned."""
     model = IncrementalLDA(["cup", "plate"], seed=0)
     model.learn_scene(["cup", "plate"])
     with pytest.raises(InvalidInputError, match="^words"):
         model.infer_scene(words)  # type: ignore[arg-type]
+    with pytest.raises(InvalidInputError, match="^words"):
+        model.learn_scene(words)  # type: ignore[arg-type]
+    assert (model.n_scenes, model.vocabulary) == (1, ("cup", "plate"))
     assert np.array_equal(model.infer_scene(("cup", "plate")), model.infer_scene(["cup", "plate"]))
     assert np.array_equal(model.infer_scene(["cup", "mug"]), model.infer_scene(["cup"]))
 

@@ -194,10 +194,9 @@ class IncrementalLDA:
         (:meth:`LDAState.scene_changes`): at ~64 tokens a scene, numpy calls spread over the
         bookkeeping would cost more than the sampling, so it is fused.
         """
-        words = _scene_words(words)
+        ids, additions = self._scene_ids(words)
         state, h = self._state, self.hyperparameters
         contexts_before = state.n_contexts
-        ids, additions = self._scene_ids(words)
         earlier = state.n_tokens
         first_doc = self._k_rule.growth_window(state, ids)
         scene, touched, previous = state.add_scene_online(
@@ -452,13 +451,18 @@ class IncrementalLDA:
     def _ids(self, words: Sequence[str]) -> np.ndarray:
         return np.fromiter((self._index[w] for w in words), dtype=np.int32, count=len(words))
 
-    def _scene_ids(self, words: Sequence[str]) -> tuple[np.ndarray, list[str]]:
-        """The scene's concept ids (int32) and the concepts it adds to the vocabulary, in order."""
-        try:  # the common case, every concept known: one pass of dict lookups
-            return np.fromiter(map(self._index.__getitem__, words), dtype=np.int32, count=len(words)), []
-        except KeyError:
-            additions = self._add_concepts(words)
-            return self._ids(words), additions
+    def _scene_ids(self, words: Any) -> tuple[np.ndarray, list[str]]:
+        """The scene's concept ids (int32) and the concepts it adds to the vocabulary, in order,
+        after validating the scene (``_scene_words``). In the common case, every concept known, one
+        pass of dict lookups in C does both (as in :meth:`_known_ids`)."""
+        if type(words) in (list, tuple) and words:
+            try:
+                return np.fromiter(map(self._index.__getitem__, words), dtype=np.int32, count=len(words)), []
+            except (KeyError, TypeError):  # a new concept, or an entry that is not a valid name at all
+                pass
+        words = _scene_words(words)
+        additions = self._add_concepts(words)
+        return self._ids(words), additions
 
 
 def _validated_words(words: Any, field_name: str, allow_empty: bool = False) -> list[str]:

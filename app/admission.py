@@ -43,7 +43,7 @@ from collections import OrderedDict
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from dataclasses import dataclass, field
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import anyio
 from starlette.types import ASGIApp, Receive, Scope, Send
@@ -88,6 +88,16 @@ class _Bucket:
     updated: float
 
 
+class Postponed(Exception):
+    """Raised by a scene's ``learn`` on its scene thread when the rest would wait for a lock held by
+    another process (app/routers/scenes.py): :meth:`Admission.run_scene` runs ``resume()`` on a
+    write thread instead, so the wait holds none of the process's scene threads."""
+
+    def __init__(self, resume: Callable[[], Any]) -> None:
+        super().__init__("postponed to a write thread")
+        self.resume = resume
+
+
 class Admission:
     """The per-model write queues and the per-client token buckets of one process."""
 
@@ -99,7 +109,7 @@ class Admission:
         rate_per_second: float = 0.0,
         rate_burst: int = 1,
         write_threads: int = 4,
-        scene_threads: int = 4,
+        scene_threads: int = 1,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.model_write_queue = model_write_queue
@@ -151,12 +161,17 @@ class Admission:
         """A scene write, admitted as :meth:`run_write` admits one: ``learn(read())`` on a thread of
         :attr:`scene_threads`; a ``heavy`` scene (raw payloads: feature extraction in GIL-free kernels,
         seconds for the largest) is ``read`` first on any write thread, so that it never holds a
-        scene thread that the process's other models wait for."""
+        scene thread that the process's other models wait for. If ``learn`` raises :class:`Postponed`
+        (it would wait for a lock that another process holds), the scene thread is given back and
+        its ``resume`` runs on a write thread: the wait holds no scene thread either."""
         async with self._admitted(model_id, body_bytes):
-            if heavy:
-                read_scene = await anyio.to_thread.run_sync(read, limiter=self.write_threads)
-                return await anyio.to_thread.run_sync(learn, read_scene, limiter=self.scene_threads)
-            return await anyio.to_thread.run_sync(lambda: learn(read()), limiter=self.scene_threads)
+            try:
+                if heavy:
+                    read_scene = await anyio.to_thread.run_sync(read, limiter=self.write_threads)
+                    return await anyio.to_thread.run_sync(learn, read_scene, limiter=self.scene_threads)
+                return await anyio.to_thread.run_sync(lambda: learn(read()), limiter=self.scene_threads)
+            except Postponed as postponed:
+                return await anyio.to_thread.run_sync(postponed.resume, limiter=self.write_threads)
 
     def refusal(self, model_id: str, body_bytes: int) -> ModelBusy | None:
         """The 429 a write of ``body_bytes`` to ``model_id`` would get now, or None."""
@@ -235,7 +250,7 @@ def admission_of(settings: Settings) -> Admission:
         rate_per_second=settings.rate_limit_per_second,
         rate_burst=settings.rate_limit_burst,
         write_threads=settings.write_threads,
-        scene_threads=settings.resolved_scene_threads,
+        scene_threads=settings.scene_threads,
     )
 
 

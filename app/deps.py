@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from functools import partial
 from typing import Annotated, TypeVar
 
 import anyio
@@ -28,7 +29,7 @@ from fastapi.security import APIKeyHeader
 from sqlalchemy.orm import Session
 from starlette.requests import HTTPConnection, Request
 
-from app.admission import Admission, client_identity
+from app.admission import Admission, Postponed, client_identity
 from app.auth import Principal, authenticate, authorise
 from app.errors import (
     Unauthorized,
@@ -40,6 +41,7 @@ from app.errors import (
 from app.registry import ModelRuntime, ModelWrite
 from app.schemas.keys import Role
 from app.state import AppState
+from storage.repositories.incremental_lda import LockHeldElsewhere
 from storage.unit_of_work import unit_of_work
 
 T = TypeVar("T")
@@ -160,7 +162,7 @@ WriteSessionDep = Annotated[Session, Depends(write_session, scope="function")]
 
 
 @contextmanager
-def model_write(state: AppState, model: ModelRuntime) -> Iterator[ModelWrite]:
+def model_write(state: AppState, model: ModelRuntime, *, wait: bool = True) -> Iterator[ModelWrite]:
     """The unit of work of a write to ``model`` (docs/scaling.md): the model's writer runs it
     (``ModelWriter.transaction`` in app/registry.py), and here its storage failures are counted
     and answered as a 503 ``storage_unavailable``, or ``storage_busy`` when the database's lock
@@ -182,9 +184,11 @@ def model_write(state: AppState, model: ModelRuntime) -> Iterator[ModelWrite]:
     The database's lock is taken first and the model's after it, then both are held through the
     commit: while the write waits for a lock held elsewhere (another process's write, an outside
     ``sqlite3`` shell), the model's reads go on, from memory that still equals the database.
+    ``wait=False`` (a scene on its scene thread, app/routers/scenes.py): on PostgreSQL, a lock held
+    by another transaction raises ``LockHeldElsewhere`` at once instead (nothing changed, nothing counted).
     """
     try:
-        with model.writer.transaction(state.write_sessions, state.registry) as write:
+        with model.writer.transaction(state.write_sessions, state.registry, wait=wait) as write:
             yield write
         state.storage.record_success()
     except BaseException as error:
@@ -196,6 +200,16 @@ def model_write(state: AppState, model: ModelRuntime) -> Iterator[ModelWrite]:
         if failed:
             raise storage_error(error) from error
         raise
+
+
+def write_or_postpone(write: Callable[[bool], T]) -> T:
+    """``write(wait=False)`` (it calls :func:`model_write` with that ``wait``) on a scene thread; if
+    another process holds the model's lock, :class:`Postponed` to ``write(wait=True)`` on a write
+    thread (``Admission.run_scene``), so that the wait for that lock holds no scene thread."""
+    try:
+        return write(False)
+    except LockHeldElsewhere as held:
+        raise Postponed(partial(write, True)) from held
 
 
 def write_model(state: AppState, model: ModelRuntime, work: Callable[[Session], T]) -> T:

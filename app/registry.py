@@ -160,8 +160,12 @@ class ModelWriter:
     # The unit of work.
 
     @contextmanager
-    def transaction(self, write_sessions: sessionmaker[Session], registry: ModelRegistry) -> Iterator[ModelWrite]:
+    def transaction(
+        self, write_sessions: sessionmaker[Session], registry: ModelRegistry, *, wait: bool = True
+    ) -> Iterator[ModelWrite]:
         """One write to the model, committed or undone (app/deps.py ``model_write`` documents the order).
+        ``wait=False``: on PostgreSQL, raises ``LockHeldElsewhere`` at once, before anything else, if
+        another transaction holds the model's lock (``lda_repository.lock_version``).
 
         Under the database's lock (the model's state row, or SQLite's write lock, which this
         process's writers take turns to wait for: ``storage.database.write_turn``), taken first,
@@ -175,7 +179,7 @@ class ModelWriter:
         holding = False
         try:
             with write_turn(write_sessions), unit_of_work(write_sessions) as session:
-                stored = lda_repository.lock_version(session, self.id)  # the database's lock: wait here
+                stored = lda_repository.lock_version(session, self.id, wait=wait)  # the database's lock: wait here
                 self.lock.acquire()
                 holding = True
                 if self.deleted:

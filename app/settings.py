@@ -12,7 +12,7 @@ from typing import Literal
 from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from storage.database import DEFAULT_DATABASE_URL, is_sqlite
+from storage.database import DEFAULT_DATABASE_URL
 
 LOOPBACK_HOSTS = frozenset({"127.0.0.1", "::1", "localhost"})
 
@@ -73,11 +73,12 @@ class Settings(BaseSettings):
         ge=1,
         description="Threads the admitted model writes share, apart from `worker_threads` (docs/operations.md).",
     )
-    scene_threads: int | None = Field(
-        None,
+    scene_threads: int = Field(
+        1,
         ge=1,
         description="Threads that learn scenes at once, apart from the write threads (which extract a raw scene's "
-        "features first); unset: 1 on SQLite, `write_threads` on PostgreSQL (docs/scaling.md).",
+        "features first, and wait for a model's lock held by another process): a second one only takes the "
+        "GIL from the first (docs/scaling.md).",
     )
     worker_threads: int = Field(16, ge=1, description="Threads running the blocking routes (numba, database).")
     model_write_queue: int = Field(
@@ -134,14 +135,6 @@ class Settings(BaseSettings):
     @property
     def resolved_database_url(self) -> str:
         return self.database_url or DEFAULT_DATABASE_URL
-
-    @property
-    def resolved_scene_threads(self) -> int:
-        """``scene_threads``, else 1 on SQLite (its write lock is the database's: a second scene thread of
-        a process could only wait for it, and slowed the one holding it; docs/scaling.md), else ``write_threads``."""
-        if self.scene_threads is not None:
-            return self.scene_threads
-        return 1 if is_sqlite(self.resolved_database_url) else self.write_threads
 
     @property
     def auth_enabled(self) -> bool:

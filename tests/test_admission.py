@@ -26,7 +26,7 @@ import httpx
 import pytest
 from fastapi.testclient import TestClient
 
-from app.admission import Admission, client_identity
+from app.admission import Admission, Postponed, client_identity
 from app.errors import ModelBusy, RateLimited
 from app.main import create_app
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, make_settings, migrated_database
@@ -155,11 +155,44 @@ def test_scene_threads_bound_the_scenes_learned_at_once_and_a_heavy_read_holds_n
     assert asyncio.run(heavy_beside_light()) == ("learned concepts", True, "learned raw")
 
 
-def test_scene_threads_default_to_one_on_sqlite_only() -> None:
-    assert make_settings("sqlite:///unused.sqlite3").resolved_scene_threads == 1
-    postgres = make_settings("postgresql+psycopg://localhost/unused", write_threads=3)
-    assert postgres.resolved_scene_threads == 3
-    assert make_settings("sqlite:///unused.sqlite3", scene_threads=2).resolved_scene_threads == 2
+def test_a_postponed_scene_waits_on_a_write_thread_and_frees_the_scene_thread() -> None:
+    """A scene whose model's lock is held by another process raises ``Postponed`` on its scene
+    thread: its ``resume`` waits on a write thread, while another model's scene takes the one
+    scene thread and is learned (without the postponement it would wait for the lock's release)."""
+    released = threading.Event()
+    threads: dict[str, str] = {}
+
+    def learn_a(read: str) -> str:
+        threads["A tried"] = threading.current_thread().name
+
+        def resume() -> str:
+            threads["A resumed"] = threading.current_thread().name
+            released.wait(10)
+            return f"learned {read} after the lock"
+
+        raise Postponed(resume)
+
+    def learn_b(read: str) -> str:
+        threads["B"] = threading.current_thread().name
+        return f"learned {read}"
+
+    async def scenario() -> tuple[str, bool, str]:
+        admission = Admission(model_write_queue=4, scene_threads=1)
+        postponed = asyncio.create_task(admission.run_scene("A", lambda: "a", learn_a, heavy=False))
+        await asyncio.sleep(0.1)
+        other = await asyncio.wait_for(admission.run_scene("B", lambda: "b", learn_b, heavy=False), 5)
+        still_waiting = not postponed.done()
+        released.set()
+        return other, still_waiting, await postponed
+
+    assert asyncio.run(scenario()) == ("learned b", True, "learned a after the lock")
+    assert set(threads) == {"A tried", "A resumed", "B"}
+
+
+def test_one_scene_thread_by_default_on_both_databases() -> None:
+    assert make_settings("sqlite:///unused.sqlite3").scene_threads == 1
+    assert make_settings("postgresql+psycopg://localhost/unused", write_threads=3).scene_threads == 1
+    assert make_settings("sqlite:///unused.sqlite3", scene_threads=2).scene_threads == 2
 
 
 def test_queue_bounded_in_bytes_but_one_write_may_always_wait() -> None:

@@ -18,6 +18,7 @@ from app.deps import (
     WriteModelDep,
     WriteRate,
     model_write,
+    write_or_postpone,
 )
 from app.errors import (
     Forbidden,
@@ -84,9 +85,22 @@ async def post_scene(
 def _learn_scene(
     state: AppState, model: ModelRuntime, idempotency_key: str | None, read: scene_service.ReadScene
 ) -> tuple[str, bool]:
-    """On the admitted scene thread: perception before the model's lock, the learning under it."""
+    """On the admitted scene thread: perception before the model's lock, the learning under it. If
+    another process holds the model's lock (PostgreSQL), the wait for it and the learning are
+    postponed to a write thread, so this process's scenes of other models need not wait for them."""
     prepared = scene_service.prepare_scene(model, read)
-    with model_write(state, model) as write:
+    return write_or_postpone(partial(_write_scene, state, model, idempotency_key, prepared))
+
+
+def _write_scene(
+    state: AppState,
+    model: ModelRuntime,
+    idempotency_key: str | None,
+    prepared: scene_service.PreparedScene,
+    wait: bool,
+) -> tuple[str, bool]:
+    """The prepared scene learned in one unit of work of its model (``wait``: app/deps.py ``model_write``)."""
+    with model_write(state, model, wait=wait) as write:
         answer, replayed = scene_service.learn_scene(
             write.session, model, write.version, prepared, idempotency_key, state.metrics
         )

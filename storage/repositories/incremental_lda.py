@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 from sqlalchemy import insert, select
+from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session
 
 from storage.compression import pack_arrays, pack_small_arrays, unpack_arrays, unpack_small_arrays
@@ -501,14 +502,31 @@ def stored_counts(session: Session, model_id: str) -> dict[tuple[int, int], int]
 # Versions: every committed write to a model bumps its version (docs/scaling.md).
 
 
-def lock_version(session: Session, model_id: str) -> int | None:
+class LockHeldElsewhere(Exception):
+    """``lock_version(..., wait=False)``: another transaction holds the model's lock (its state row)."""
+
+
+def lock_version(session: Session, model_id: str, *, wait: bool = True) -> int | None:
     """The model's stored version, with the model locked for this transaction's writes (None: no
     such model). PostgreSQL locks the state row (``FOR UPDATE``, which waits for the lock and then
     reads the row's newest version); SQLite's write transactions already hold the database's write
-    lock (``BEGIN IMMEDIATE``)."""
+    lock (``BEGIN IMMEDIATE``).
+
+    ``wait=False``: on PostgreSQL, raises :class:`LockHeldElsewhere` at once (``NOWAIT``; the
+    transaction is then aborted) instead of waiting for a lock that another transaction holds;
+    on SQLite, the same as ``wait=True``."""
     driver = DriverStatements(session)
-    statement = _SELECT_VERSION + (" FOR UPDATE" if driver.dialect.name == "postgresql" else "")
-    row = driver.fetchone(statement, (model_id,))
+    if driver.dialect.name != "postgresql":
+        row = driver.fetchone(_SELECT_VERSION, (model_id,))
+    elif wait:
+        row = driver.fetchone(_SELECT_VERSION + " FOR UPDATE", (model_id,))
+    else:
+        try:
+            row = driver.fetchone(_SELECT_VERSION + " FOR UPDATE NOWAIT", (model_id,))
+        except DBAPIError as error:
+            if getattr(error.orig, "sqlstate", None) == _LOCK_NOT_AVAILABLE:
+                raise LockHeldElsewhere(model_id) from error
+            raise
     return None if row is None else int(row[0])
 
 
@@ -530,6 +548,8 @@ def set_version(session: Session, model_id: str, version: int) -> None:
 
 
 _SELECT_VERSION = "SELECT version FROM incremental_lda_state WHERE model_id = ?"
+_LOCK_NOT_AVAILABLE = "55P03"
+"""PostgreSQL's SQLSTATE ``lock_not_available`` (``NOWAIT``, or ``lock_timeout`` run out)."""
 _SET_VERSION = "UPDATE incremental_lda_state SET version = ? WHERE model_id = ?"
 
 

@@ -1,0 +1,90 @@
+"""One scene thread per process on PostgreSQL: a model's lock held elsewhere stalls only that model.
+
+A real ``contextweb serve`` process (one scene thread, the default) on a real PostgreSQL
+database, and a real outside transaction (another process's write, an operator's ``psql``)
+holding model A's lock (its state row, ``FOR UPDATE``) for several seconds:
+
+- a scene posted to A waits for the lock, on a write thread, and is learned once it is released
+  (a 201, not a refusal: the hold is shorter than the server's ``lock_timeout``);
+- meanwhile scenes posted to model B on the same process are learned at once: A's wait holds
+  no scene thread (without the postponement, B's scenes would wait behind it on the one thread);
+- afterwards both models' invariants hold, and the server logged no error.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import psycopg
+import pytest
+
+from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
+from tests.faults import KeyedPost, create_model, fresh_postgres_database, model_invariants
+from tests.servers import running_server
+
+pytestmark = pytest.mark.postgres
+
+HOLD_SECONDS = 4.0
+#: B's scenes must each be answered within this while A's lock is held elsewhere (they take milliseconds).
+PROMPT_SECONDS = 1.5
+
+
+def _post(client: httpx.Client, model_id: str, post: KeyedPost) -> httpx.Response:
+    response = client.post(f"/v1/models/{model_id}/scenes", json=post.body, headers={"Idempotency-Key": post.key})
+    post.statuses.append(response.status_code)
+    post.final_status = response.status_code
+    if response.status_code == 201:
+        post.answer, post.answer_text = response.json(), response.text
+    return response
+
+
+def test_a_lock_held_elsewhere_stalls_its_model_only(tmp_path: Path) -> None:
+    bodies = concept_scenes(16, seed=31)
+    posts = {name: [KeyedPost(key=f"{name}-{i}", body=body) for i, body in enumerate(bodies)] for name in "ab"}
+    with fresh_postgres_database("contextweb_locks") as url, running_server(url, tmp_path) as server:
+        models = {name: create_model(server.base_url, FAST_HYPERPARAMETERS, name=name) for name in "ab"}
+        with server.client(timeout=30) as client:
+            for name in "ab":
+                for post in posts[name][:3]:
+                    assert _post(client, models[name], post).status_code == 201
+        outside = psycopg.connect(url.replace("postgresql+psycopg://", "postgresql://"), autocommit=False)
+        try:
+            outside.execute("SELECT version FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (models["a"],))
+            locked_at = time.monotonic()
+            waited: dict[str, float | int] = {}
+
+            def post_to_a() -> None:
+                with server.client(timeout=30) as own:
+                    waited["status"] = _post(own, models["a"], posts["a"][3]).status_code
+                    waited["seconds"] = time.monotonic() - locked_at
+
+            blocked = threading.Thread(target=post_to_a)
+            blocked.start()
+            time.sleep(0.5)  # A's scene is on the server, waiting for the lock
+            prompt: list[float] = []
+            with server.client(timeout=30) as client:
+                for post in posts["b"][3:]:
+                    started = time.monotonic()
+                    assert _post(client, models["b"], post).status_code == 201, post.statuses
+                    prompt.append(time.monotonic() - started)
+                    if time.monotonic() - locked_at > HOLD_SECONDS - 1:
+                        break
+            assert blocked.is_alive(), "A's scene did not wait for the lock held elsewhere"
+            time.sleep(max(0.0, HOLD_SECONDS - (time.monotonic() - locked_at)))
+        finally:
+            outside.rollback()
+            outside.close()
+        blocked.join(30)
+        assert waited.get("status") == 201, waited
+        assert waited["seconds"] >= HOLD_SECONDS - 0.5, waited
+        assert len(prompt) >= 3 and max(prompt) < PROMPT_SECONDS, f"B's scenes took {prompt} s while A waited"
+        with server.client(timeout=30) as client:
+            for post in posts["a"][4:6]:
+                assert _post(client, models["a"], post).status_code == 201
+        for name in "ab":
+            sent = [post for post in posts[name] if post.statuses]
+            assert model_invariants(url, [server.base_url], models[name], sent) == [], name
+        assert "Traceback" not in server.log(1_000_000)

@@ -11,10 +11,12 @@ import argparse
 import logging
 import os
 import sys
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from sqlalchemy.exc import OperationalError
 
+from app.connections import create_counts
 from app.logs import log_config
 from app.settings import LOOPBACK_HOSTS, Settings
 from storage.database import create_database_engine
@@ -115,21 +117,29 @@ def run_serve(args: argparse.Namespace) -> int:
         raise SystemExit("contextweb serve: --workers must be at least 1")
     if (status := _check_database(settings)) is not None:
         return status
+    counts: Path | None = None
     if args.workers == 1:
         target: Any = serving_app(settings)
     else:
         # Each worker builds its own app from the environment (uvicorn imports the factory by name).
         os.environ.update({f"CONTEXTWEB_{name.upper()}": str(value) for name, value in overrides.items()})
         target = "app.serve:serving_app"
-    uvicorn.run(
-        target,
-        factory=args.workers > 1,
-        workers=args.workers,
-        host=host,
-        port=settings.port,
-        log_level=args.log_level,
-        log_config=log_config(),
-        access_log=False,
-        ws="app.websocket_protocol:ResettableWebSocketProtocol",  # slow stream clients can be dropped (docs/stream.md)
-    )
+        counts = create_counts(os.getpid(), args.workers)  # the workers even out their connections
+    try:
+        uvicorn.run(
+            target,
+            factory=args.workers > 1,
+            workers=args.workers,
+            host=host,
+            port=settings.port,
+            log_level=args.log_level,
+            log_config=log_config(),
+            access_log=False,
+            # With several workers, their keep-alive connections evened out (app/connections.py).
+            http="app.connections:BalancedHttpToolsProtocol" if counts is not None else "auto",
+            ws="app.websocket_protocol:ResettableWebSocketProtocol",  # slow stream clients can be dropped (docs/stream.md)
+        )
+    finally:
+        if counts is not None:
+            counts.unlink(missing_ok=True)
     return 0

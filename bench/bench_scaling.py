@@ -12,8 +12,9 @@ checks like bench_service's):
   ``contextweb serve`` processes on two ports, clients split 4/4; in the full run
   (a) is measured again after (c) (``single_again``) and the reference is the
   mean of the two, because the machine is shared. For ``--workers 2`` the
-  connections each worker accepted are counted from ``/proc`` (which process
-  holds each accepted socket). Every answer's status is counted: a refused
+  connections each worker holds at the end of the run are counted from ``/proc``
+  (which process holds each accepted socket; the workers even them out,
+  app/connections.py), and the run's reconnections are counted. Every answer's status is counted: a refused
   scene is reported, never retried. The bodies are encoded as JSON before the
   clock starts (a robot's encoding is its own CPU, not the server's), and the
   connections are opened one after the other, as robots coming online do (at
@@ -178,7 +179,7 @@ def _start(specs: list[tuple[str, Path, int]]) -> list[ScalingServer]:
     return servers
 
 
-def _socket_owners(port: int, client_ports: list[int], pids: list[int]) -> dict[str, int]:
+def socket_owners(port: int, client_ports: list[int], pids: list[int]) -> dict[str, int]:
     """How many of the clients' connections each process holds (their accepted sockets, from /proc)."""
     inodes = set()
     for table in ("/proc/net/tcp", "/proc/net/tcp6"):
@@ -282,6 +283,8 @@ def _spread(
     connection is read from /proc. ``database``: the PostgreSQL database whose backends' CPU counts."""
     count = len(targets)
     connected, go = threading.Barrier(count + 1), threading.Barrier(count + 1)
+    finished, counted = threading.Barrier(count + 1), threading.Barrier(count + 1)
+    reconnections = [0] * count
     opened = [threading.Event() for _ in range(count + 1)]
     opened[0].set()
     client_ports: list[int] = [0] * count
@@ -300,6 +303,7 @@ def _spread(
 
         def post(body: bytes) -> None:
             start = time.perf_counter()
+            reconnections[index] += connection.sock is None  # closed by the server, or after an error
             try:
                 connection.request("POST", path, body=body, headers=headers)
                 response = connection.getresponse()
@@ -323,9 +327,13 @@ def _spread(
             connected.wait()
             own_latencies.clear()  # the untimed first scene is neither timed nor counted (a refusal would be)
             own_statuses.pop(201, None)
+            reconnections[index] = 0
             go.wait()
             for body in bodies[1:]:
                 post(body)
+            client_ports[index] = connection.sock.getsockname()[1] if connection.sock else 0
+            finished.wait()
+            counted.wait()  # the connection stays open until the workers' connections are counted
         except threading.BrokenBarrierError:
             pass
         finally:
@@ -338,19 +346,20 @@ def _spread(
     for thread in threads:
         thread.start()
     connected.wait()
-    owners = {}
-    for server in {id(server): server for server, _ in targets}.values():
-        if server.workers > 1:
-            owners[server.url] = _socket_owners(server.port, client_ports, server.pids())
     servers = list({id(server): server for server, _ in targets}.values())
     meter = CpuMeter(servers, database)
     cpu = os.times()
     go.wait()
     start = time.perf_counter()
-    for thread in threads:
-        thread.join()
+    finished.wait()
     elapsed = time.perf_counter() - start
     cpu_after = os.times()
+    owners = {  # at the end of the run (the spread the run ended with: app/connections.py evens it out)
+        server.url: socket_owners(server.port, client_ports, server.pids()) for server in servers if server.workers > 1
+    }
+    counted.wait()
+    for thread in threads:
+        thread.join()
     client_seconds = (cpu_after.user + cpu_after.system) - (cpu.user + cpu.system)
     accepted = statuses.pop(201, 0)
     timed = len(latencies)
@@ -372,6 +381,7 @@ def _spread(
     }
     if owners:
         result["connections_per_worker"] = owners
+    result["reconnections"] = sum(reconnections)
     return result
 
 
@@ -592,7 +602,7 @@ def _report(backend: str, result: dict[str, Any], pipeline: float) -> None:
         spread = ""
         if "connections_per_worker" in figures:
             counts = [n for owners in figures["connections_per_worker"].values() for n in owners.values()]
-            spread = f"  connections per worker {counts}"
+            spread = f"  connections per worker {counts} ({figures.get('reconnections', 0)} reconnections)"
         refused = f"  REFUSED {figures['refused']}" if figures["refused"] else ""
         cpu = figures["cpu_ms_per_scene"]
         print(

@@ -1,0 +1,137 @@
+"""An even spread of keep-alive connections over ``contextweb serve --workers N`` (docs/scaling.md).
+
+uvicorn's workers share one listening socket, and the kernel gives each new connection to whichever
+worker accepts it first. A fleet's robots keep their connections open for hours, so a chance spread
+of 2/6 or 1/7 lasts, and the busier worker's one scene thread then bounds the fleet while the other
+idles (bench_scaling, 8 clients on 8 models, ``--workers 2``, PostgreSQL: 4/4 384.6 and 373.6
+scenes/s, 3/5 317.5 and 323.4, 1/7 247.3).
+
+So each worker counts its open connections in a small file that every worker of one server maps
+(:class:`ConnectionCounts`, one slot per worker, named after the supervising process). A worker
+that accepts a connection while it holds more than its share (⌈open connections / workers⌉) answers
+that connection's first request with ``Connection: close``: the client opens a new connection (every
+HTTP client does so by itself, as it does after a keep-alive time-out), which any worker may accept.
+Each such round moves the spread towards even; a connection within its worker's share is never
+closed. Nothing is shared but counts, and a stale or torn count costs at most one extra reconnection
+or one missed one: the slots are plain memory, written by their worker only, read by the others.
+
+With one worker, uvicorn's own protocol runs unchanged (``serve`` passes this one only with N > 1).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import fcntl
+import math
+import mmap
+import os
+import struct
+import tempfile
+from pathlib import Path
+
+from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
+
+_SLOT = struct.Struct("=qq")
+"""A worker's slot: its process id (0: free) and its open connections."""
+
+
+def counts_path(supervisor_pid: int) -> Path:
+    """The counts file of the server whose supervising process is ``supervisor_pid``."""
+    folder = Path("/dev/shm") if Path("/dev/shm").is_dir() else Path(tempfile.gettempdir())
+    return folder / f"contextweb-connections-{supervisor_pid}"
+
+
+def create_counts(supervisor_pid: int, workers: int) -> Path:
+    """The empty counts file of a server of ``workers`` workers (the supervisor makes it before they start)."""
+    path = counts_path(supervisor_pid)
+    path.write_bytes(bytes(_SLOT.size * workers))
+    return path
+
+
+class ConnectionCounts:
+    """This worker's view of every worker's open connections, in the file :func:`create_counts` made."""
+
+    def __init__(self, path: Path) -> None:
+        with path.open("r+b") as handle:
+            fcntl.flock(handle, fcntl.LOCK_EX)  # two workers starting at once claim two slots
+            try:
+                self._memory = mmap.mmap(handle.fileno(), 0)
+                self._workers = len(self._memory) // _SLOT.size
+                self._slot = self._claim(os.getpid())
+            finally:
+                fcntl.flock(handle, fcntl.LOCK_UN)
+        self.open = 0
+
+    def _claim(self, pid: int) -> int:
+        """A free slot, or that of a worker that has exited (uvicorn replaces a dead worker)."""
+        for slot in range(self._workers):
+            owner, _ = _SLOT.unpack_from(self._memory, slot * _SLOT.size)
+            if owner == 0 or not _alive(owner):
+                _SLOT.pack_into(self._memory, slot * _SLOT.size, pid, 0)
+                return slot
+        raise RuntimeError(f"no free slot among {self._workers} workers' connection counts")
+
+    def opened(self) -> bool:
+        """Count a new connection; True if this worker now holds more than its share of them."""
+        self.open += 1
+        self._write()
+        total = workers = 0
+        for slot in range(self._workers):
+            owner, count = _SLOT.unpack_from(self._memory, slot * _SLOT.size)
+            if owner != 0:
+                workers += 1
+                total += max(0, count)
+        return self.open > math.ceil(total / max(1, workers))
+
+    def closed(self) -> None:
+        self.open -= 1
+        self._write()
+
+    def _write(self) -> None:
+        _SLOT.pack_into(self._memory, self._slot * _SLOT.size, os.getpid(), self.open)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+_counts: ConnectionCounts | None = None
+"""This worker's counts, opened on its first connection (None until then, or without a counts file)."""
+
+
+def _worker_counts() -> ConnectionCounts | None:
+    global _counts  # one per worker process, shared by its connections
+    if _counts is None:
+        path = counts_path(os.getppid())
+        if path.exists():
+            _counts = ConnectionCounts(path)
+    return _counts
+
+
+class BalancedHttpToolsProtocol(HttpToolsProtocol):
+    """uvicorn's httptools protocol, counting this worker's connections (:class:`ConnectionCounts`)
+    and closing one accepted beyond the worker's share after its first response."""
+
+    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+        super().connection_made(transport)
+        counts = _worker_counts()
+        self._counted = counts is not None
+        self._over_share = counts.opened() if counts is not None else False
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self._counted and _counts is not None:
+            _counts.closed()
+            self._counted = False
+        super().connection_lost(exc)
+
+    def on_headers_complete(self) -> None:
+        super().on_headers_complete()
+        if self._over_share and self.cycle is not None:
+            self._over_share = False
+            self.cycle.keep_alive = False  # the response says "connection: close", then the transport closes

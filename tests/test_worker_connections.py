@@ -1,0 +1,72 @@
+"""``contextweb serve --workers 2`` evens out long-lived keep-alive connections (app/connections.py).
+
+The kernel hands each new connection to whichever worker accepts it first, so 8 keep-alive
+clients could stay 1/7 for hours. Here 8 real clients, opened one after another on a real
+2-worker server, each make a few requests; afterwards each worker holds exactly 4 of them (read
+from ``/proc``, as bench_scaling counts them), every request was answered, and a connection
+within its worker's share was never closed.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+from app.connections import ConnectionCounts, create_counts
+from bench.bench_scaling import socket_owners
+from tests.conftest import migrated_database
+from tests.servers import running_server
+
+CLIENTS = 8
+REQUESTS = 12
+
+
+def _worker_pids(supervisor: int) -> list[int]:
+    children = Path(f"/proc/{supervisor}/task/{supervisor}/children").read_text().split()
+    return [int(pid) for pid in children]
+
+
+def test_two_workers_end_with_four_connections_each(request: pytest.FixtureRequest, tmp_path: Path) -> None:
+    url = migrated_database("sqlite", request, tmp_path)
+    with running_server(url, tmp_path, args=["--workers", "2"], log_level="info") as server:
+        deadline = time.monotonic() + 60
+        while server.log(1_000_000).count("Application startup complete") < 2 and time.monotonic() < deadline:
+            time.sleep(0.2)
+        clients = [httpx.Client(base_url=server.base_url, timeout=10) for _ in range(CLIENTS)]
+        try:
+            for client in clients:  # opened one after another, as robots coming online
+                assert client.get("/healthz").status_code == 200
+            for _ in range(REQUESTS):
+                for client in clients:
+                    assert client.get("/healthz").status_code == 200
+            ports = []
+            for client in clients:
+                response = client.get("/healthz")
+                assert response.status_code == 200
+                assert response.headers.get("connection") != "close", "a connection within its share was closed"
+                stream = response.extensions["network_stream"]
+                ports.append(stream.get_extra_info("client_addr")[1])
+            owners = socket_owners(server.port, ports, _worker_pids(server.pid))
+        finally:
+            for client in clients:
+                client.close()
+    held = sorted(count for count in owners.values() if count)
+    assert held == [4, 4], owners
+
+
+def test_a_worker_over_its_share_is_told_so(tmp_path: Path) -> None:
+    """The share rule on one counts file: ⌈open connections / workers⌉ per worker."""
+    path = create_counts(999_999_001, 2)
+    try:
+        first, second = ConnectionCounts(path), ConnectionCounts(path)
+        assert first.opened() is False  # 1 open in all: share 1
+        assert first.opened() is True  # 2 in all: share 1, and the first holds 2
+        first.closed()
+        assert second.opened() is False  # 1 and 1
+        assert second.opened() is False  # 3 in all: share 2
+        assert second.opened() is True  # 4 in all: share 2, and the second holds 3
+    finally:
+        path.unlink()

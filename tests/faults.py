@@ -485,6 +485,17 @@ class KeyedPost:
         return self.final_status == 201
 
 
+def post_keyed_once(client: httpx.Client, model_id: str, post: KeyedPost) -> httpx.Response:
+    """One attempt of ``post`` (no retry), its outcome recorded on it."""
+    response = client.post(f"/v1/models/{model_id}/scenes", json=post.body, headers={"Idempotency-Key": post.key})
+    post.statuses.append(response.status_code)
+    post.final_status = response.status_code
+    if response.status_code == 201:
+        post.answer, post.answer_text = response.json(), response.text
+        post.replayed = response.headers.get("idempotent-replayed") == "true"
+    return response
+
+
 @dataclass
 class KeyedClient:
     """A robot: posts ``bodies`` in order, each under its own Idempotency-Key, retrying until a deadline.

@@ -17,12 +17,11 @@ import threading
 import time
 from pathlib import Path
 
-import httpx
 import psycopg
 import pytest
 
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
-from tests.faults import KeyedPost, create_model, fresh_postgres_database, model_invariants
+from tests.faults import KeyedPost, create_model, fresh_postgres_database, model_invariants, post_keyed_once
 from tests.servers import running_server
 
 pytestmark = pytest.mark.postgres
@@ -30,15 +29,6 @@ pytestmark = pytest.mark.postgres
 HOLD_SECONDS = 4.0
 #: B's scenes must each be answered within this while A's lock is held elsewhere (they take milliseconds).
 PROMPT_SECONDS = 1.5
-
-
-def _post(client: httpx.Client, model_id: str, post: KeyedPost) -> httpx.Response:
-    response = client.post(f"/v1/models/{model_id}/scenes", json=post.body, headers={"Idempotency-Key": post.key})
-    post.statuses.append(response.status_code)
-    post.final_status = response.status_code
-    if response.status_code == 201:
-        post.answer, post.answer_text = response.json(), response.text
-    return response
 
 
 def test_a_lock_held_elsewhere_stalls_its_model_only(tmp_path: Path) -> None:
@@ -49,7 +39,7 @@ def test_a_lock_held_elsewhere_stalls_its_model_only(tmp_path: Path) -> None:
         with server.client(timeout=30) as client:
             for name in "ab":
                 for post in posts[name][:3]:
-                    assert _post(client, models[name], post).status_code == 201
+                    assert post_keyed_once(client, models[name], post).status_code == 201
         outside = psycopg.connect(url.replace("postgresql+psycopg://", "postgresql://"), autocommit=False)
         try:
             outside.execute("SELECT version FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (models["a"],))
@@ -58,7 +48,7 @@ def test_a_lock_held_elsewhere_stalls_its_model_only(tmp_path: Path) -> None:
 
             def post_to_a() -> None:
                 with server.client(timeout=30) as own:
-                    waited["status"] = _post(own, models["a"], posts["a"][3]).status_code
+                    waited["status"] = post_keyed_once(own, models["a"], posts["a"][3]).status_code
                     waited["seconds"] = time.monotonic() - locked_at
 
             blocked = threading.Thread(target=post_to_a)
@@ -68,7 +58,7 @@ def test_a_lock_held_elsewhere_stalls_its_model_only(tmp_path: Path) -> None:
             with server.client(timeout=30) as client:
                 for post in posts["b"][3:]:
                     started = time.monotonic()
-                    assert _post(client, models["b"], post).status_code == 201, post.statuses
+                    assert post_keyed_once(client, models["b"], post).status_code == 201, post.statuses
                     prompt.append(time.monotonic() - started)
                     if time.monotonic() - locked_at > HOLD_SECONDS - 1:
                         break
@@ -83,7 +73,7 @@ def test_a_lock_held_elsewhere_stalls_its_model_only(tmp_path: Path) -> None:
         assert len(prompt) >= 3 and max(prompt) < PROMPT_SECONDS, f"B's scenes took {prompt} s while A waited"
         with server.client(timeout=30) as client:
             for post in posts["a"][4:6]:
-                assert _post(client, models["a"], post).status_code == 201
+                assert post_keyed_once(client, models["a"], post).status_code == 201
         for name in "ab":
             sent = [post for post in posts[name] if post.statuses]
             assert model_invariants(url, [server.base_url], models[name], sent) == [], name

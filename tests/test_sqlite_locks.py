@@ -26,7 +26,7 @@ import pytest
 
 from app.storage_health import PROBE_INTERVAL_SECONDS
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, migrated_database
-from tests.faults import KeyedPost, create_model, model_invariants, stored_scene_count
+from tests.faults import KeyedPost, create_model, model_invariants, post_keyed_once, stored_scene_count
 from tests.servers import running_server
 
 BUSY_TIMEOUT_MS = 1_000
@@ -45,16 +45,6 @@ def outside_write_lock(database: Path) -> Iterator[sqlite3.Connection]:
         connection.execute("ROLLBACK")
     finally:
         connection.close()
-
-
-def _post(client: httpx.Client, model_id: str, post: KeyedPost) -> httpx.Response:
-    response = client.post(f"/v1/models/{model_id}/scenes", json=post.body, headers={"Idempotency-Key": post.key})
-    post.statuses.append(response.status_code)
-    post.final_status = response.status_code
-    if response.status_code == 201:
-        post.answer, post.answer_text = response.json(), response.text
-        post.replayed = response.headers.get("idempotent-replayed") == "true"
-    return response
 
 
 def _timed_get(client: httpx.Client, path: str) -> tuple[httpx.Response, float]:
@@ -79,11 +69,11 @@ def test_outside_write_lock_gives_storage_busy_while_reads_and_readiness_answer(
         model_id = create_model(server.base_url, FAST_HYPERPARAMETERS)
         with server.client(timeout=30) as client:
             for post in posts[:5]:
-                assert _post(client, model_id, post).status_code == 201
+                assert post_keyed_once(client, model_id, post).status_code == 201
             blocked = posts[5]
             with outside_write_lock(database):
                 started = time.monotonic()
-                refused = _post(client, model_id, blocked)
+                refused = post_keyed_once(client, model_id, blocked)
                 refused_after = time.monotonic() - started
                 time.sleep(PROBE_INTERVAL_SECONDS)  # the readiness probe is due: /readyz tries its write now
                 reads = {
@@ -108,7 +98,7 @@ def test_outside_write_lock_gives_storage_busy_while_reads_and_readiness_answer(
             assert reads[f"/v1/models/{model_id}"][0].json()["scene_count"] == 5
             assert stored_scene_count(sqlite_url, model_id) == 5, "the refused scene left rows behind"
 
-            learned = _post(client, model_id, blocked)
+            learned = post_keyed_once(client, model_id, blocked)
             assert learned.status_code == 201, learned.text
             assert not blocked.replayed, "the refused attempt must not have been stored"
             assert learned.json()["scene_id"] == 5

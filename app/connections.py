@@ -135,3 +135,6 @@ class BalancedHttpToolsProtocol(HttpToolsProtocol):
         if self._over_share and self.cycle is not None:
             self._over_share = False
             self.cycle.keep_alive = False  # the response says "connection: close", then the transport closes
+            if self._counted and _counts is not None:  # no longer this worker's: the client's next one is counted
+                _counts.closed()
+                self._counted = False

@@ -3,8 +3,8 @@
 uvicorn's workers share one listening socket, and the kernel gives each new connection to whichever
 worker accepts it first. A fleet's robots keep their connections open for hours, so a chance spread
 of 2/6 or 1/7 lasts, and the busier worker's one scene thread then bounds the fleet while the other
-idles (bench_scaling, 8 clients on 8 models, ``--workers 2``, PostgreSQL: 4/4 384.6 and 373.6
-scenes/s, 3/5 317.5 and 323.4, 1/7 247.3).
+idles (bench_scaling, 8 clients on 8 models, ``--workers 2``, PostgreSQL, one scene thread: 4/4
+384.6, 392.2 and 380.7 scenes/s, 3/5 317.5 and 323.4; with 4 scene threads 1/7 247.3).
 
 So each worker counts its open connections in a small file that every worker of one server maps
 (:class:`ConnectionCounts`, one slot per worker, named after the supervising process). A worker
@@ -96,8 +96,8 @@ def _alive(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except PermissionError:
-        return True
+    except PermissionError:  # alive, another user's
+        pass
     return True
 
 
@@ -125,9 +125,7 @@ class BalancedHttpToolsProtocol(HttpToolsProtocol):
         self._over_share = counts.opened() if counts is not None else False
 
     def connection_lost(self, exc: Exception | None) -> None:
-        if self._counted and _counts is not None:
-            _counts.closed()
-            self._counted = False
+        self._uncount()
         super().connection_lost(exc)
 
     def on_headers_complete(self) -> None:
@@ -135,6 +133,9 @@ class BalancedHttpToolsProtocol(HttpToolsProtocol):
         if self._over_share and self.cycle is not None:
             self._over_share = False
             self.cycle.keep_alive = False  # the response says "connection: close", then the transport closes
-            if self._counted and _counts is not None:  # no longer this worker's: the client's next one is counted
-                _counts.closed()
-                self._counted = False
+            self._uncount()  # no longer this worker's: the client's next connection is counted instead
+
+    def _uncount(self) -> None:
+        if self._counted and _counts is not None:
+            _counts.closed()
+            self._counted = False

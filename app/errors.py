@@ -33,6 +33,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from app.schemas.common import UNION_TAGS, ErrorRead
 from core.errors import InvalidInputError
+from storage.database import LOCK_NOT_AVAILABLE
 
 
 class ContextwebError(Exception):
@@ -319,7 +320,7 @@ def is_storage_busy(exc: BaseException) -> bool:
     original = getattr(exc, "orig", None) or exc
     if isinstance(original, sqlite3.OperationalError):
         return getattr(original, "sqlite_errorcode", 0) & 0xFF == sqlite3.SQLITE_BUSY
-    return getattr(original, "sqlstate", None) == "55P03"
+    return getattr(original, "sqlstate", None) == LOCK_NOT_AVAILABLE
 
 
 def storage_error(exc: BaseException) -> ServiceUnavailable:

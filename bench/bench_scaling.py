@@ -323,7 +323,6 @@ def _spread(
                 post(bodies[0])
             finally:
                 opened[index + 1].set()
-            client_ports[index] = connection.sock.getsockname()[1] if connection.sock else 0
             connected.wait()
             own_latencies.clear()  # the untimed first scene is neither timed nor counted (a refusal would be)
             own_statuses.pop(201, None)

@@ -194,6 +194,10 @@ def _install_sqlite_pragmas(engine: Engine, synchronous: str, database: str | No
             raise DBAPIError.instance(statement, (), error, sqlite3.Error) from error
 
 
+LOCK_NOT_AVAILABLE = "55P03"
+"""PostgreSQL's SQLSTATE ``lock_not_available``: a lock wait that ran out (``lock_timeout``) or was refused (``NOWAIT``)."""
+
+
 class DriverStatements:
     """Statements sent straight to the DB-API driver on a session's connection, in its transaction.
 

@@ -25,7 +25,7 @@ from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session
 
 from storage.compression import pack_arrays, pack_small_arrays, unpack_arrays, unpack_small_arrays
-from storage.database import DriverStatements
+from storage.database import LOCK_NOT_AVAILABLE, DriverStatements
 from storage.models import ContextWordCount, IncrementalLdaCheckpoint, IncrementalLdaState, Word, utc_now
 
 
@@ -516,17 +516,13 @@ def lock_version(session: Session, model_id: str, *, wait: bool = True) -> int |
     transaction is then aborted) instead of waiting for a lock that another transaction holds;
     on SQLite, the same as ``wait=True``."""
     driver = DriverStatements(session)
-    if driver.dialect.name != "postgresql":
-        row = driver.fetchone(_SELECT_VERSION, (model_id,))
-    elif wait:
-        row = driver.fetchone(_SELECT_VERSION + " FOR UPDATE", (model_id,))
-    else:
-        try:
-            row = driver.fetchone(_SELECT_VERSION + " FOR UPDATE NOWAIT", (model_id,))
-        except DBAPIError as error:
-            if getattr(error.orig, "sqlstate", None) == _LOCK_NOT_AVAILABLE:
-                raise LockHeldElsewhere(model_id) from error
-            raise
+    lock = "" if driver.dialect.name != "postgresql" else " FOR UPDATE" if wait else " FOR UPDATE NOWAIT"
+    try:
+        row = driver.fetchone(_SELECT_VERSION + lock, (model_id,))
+    except DBAPIError as error:
+        if not wait and getattr(error.orig, "sqlstate", None) == LOCK_NOT_AVAILABLE:
+            raise LockHeldElsewhere(model_id) from error
+        raise
     return None if row is None else int(row[0])
 
 
@@ -548,8 +544,6 @@ def set_version(session: Session, model_id: str, version: int) -> None:
 
 
 _SELECT_VERSION = "SELECT version FROM incremental_lda_state WHERE model_id = ?"
-_LOCK_NOT_AVAILABLE = "55P03"
-"""PostgreSQL's SQLSTATE ``lock_not_available`` (``NOWAIT``, or ``lock_timeout`` run out)."""
 _SET_VERSION = "UPDATE incremental_lda_state SET version = ? WHERE model_id = ?"
 
 

@@ -26,8 +26,8 @@ from pathlib import Path
 from typing import Any
 
 from sqlalchemy import Engine, create_engine, event
-from sqlalchemy.engine import Dialect, make_url
-from sqlalchemy.exc import DBAPIError, DisconnectionError
+from sqlalchemy.engine import Connection, Dialect, make_url
+from sqlalchemy.exc import DBAPIError, DisconnectionError, StatementError
 from sqlalchemy.orm import Session, sessionmaker
 from sqlalchemy.pool import Pool
 from sqlalchemy.types import TypeEngine
@@ -214,15 +214,15 @@ class DriverStatements:
         transaction = session.get_transaction()
         cached = session.info.get(_DRIVER_OF_TRANSACTION)
         if cached is not None and transaction is not None and cached[0] is transaction and transaction.is_active:
-            _, self.dialect, self._driver = cached
+            _, self._connection, self._driver = cached
         else:
-            connection = session.connection()
-            self.dialect = connection.dialect
-            driver = connection.connection.driver_connection
+            self._connection = session.connection()
+            driver = self._connection.connection.driver_connection
             # None only once the pool has invalidated the connection, which the session just checked out is not.
             assert driver is not None
             self._driver = driver
-            session.info[_DRIVER_OF_TRANSACTION] = (session.get_transaction(), self.dialect, driver)
+            session.info[_DRIVER_OF_TRANSACTION] = (session.get_transaction(), self._connection, driver)
+        self.dialect = self._connection.dialect
         self._qmark = self.dialect.paramstyle == "qmark"
 
     def execute(self, statement: str, parameters: Sequence[Any]) -> None:
@@ -240,11 +240,27 @@ class DriverStatements:
         """Every row a query answers, as the driver's plain tuples (what numpy converts fast)."""
         return self._run(statement, parameters, many=False, fetch_all=True)
 
+    def submit(self, statement: str, parameters: Sequence[Any]) -> QueuedRows:
+        """A query whose rows are read later (:meth:`QueuedRows.all`). Inside :func:`pipelined` it
+        goes to PostgreSQL with the block's other statements, and its rows are read after the block
+        (reading them inside would cost a round trip of its own); elsewhere it runs at once."""
+        return QueuedRows(self._cursor(statement, parameters, many=False))
+
     def bind(self, column: Any) -> Callable[[Any], Any]:
         """SQLAlchemy's conversion of a value for ``column`` (a Column) on this dialect."""
         return _bind_processor(self.dialect, column.type)
 
     def _run(self, statement: str, parameters: Any, *, many: bool, fetch: bool = False, fetch_all: bool = False) -> Any:
+        cursor = self._cursor(statement, parameters, many=many)
+        try:
+            if fetch_all:
+                return cursor.fetchall()
+            return cursor.fetchone() if fetch else None
+        finally:
+            cursor.close()
+
+    def _cursor(self, statement: str, parameters: Any, *, many: bool) -> Any:
+        """A cursor that has run ``statement`` (closed, and the error raised as SQLAlchemy's, if it failed)."""
         if not self._qmark:
             statement = statement.replace("?", "%s")
         cursor = self._driver.cursor()
@@ -253,15 +269,40 @@ class DriverStatements:
                 cursor.executemany(statement, parameters)
             else:
                 cursor.execute(statement, parameters)
-            if fetch_all:
-                return cursor.fetchall()
-            return cursor.fetchone() if fetch else None
         except self.dialect.loaded_dbapi.Error as error:
-            raise DBAPIError.instance(
-                statement, parameters, error, self.dialect.loaded_dbapi.Error, dialect=self.dialect
-            ) from error
-        finally:
             cursor.close()
+            raise _as_sqlalchemy_error(self._connection, statement, parameters, error) from error
+        return cursor
+
+
+class QueuedRows:
+    """The rows of a query sent by :meth:`DriverStatements.submit`."""
+
+    def __init__(self, cursor: Any) -> None:
+        self._cursor = cursor
+
+    def all(self) -> list[tuple[Any, ...]]:
+        """Every row, as the driver's plain tuples (once; the cursor is closed after)."""
+        try:
+            return self._cursor.fetchall()
+        finally:
+            self._cursor.close()
+
+    def close(self) -> None:
+        self._cursor.close()
+
+
+def _as_sqlalchemy_error(connection: Connection, statement: str, parameters: Any, error: Any) -> StatementError:
+    """A driver error as SQLAlchemy would raise it (``IntegrityError``, ``OperationalError`` …).
+    As in SQLAlchemy's own handling, an error that means the connection is lost invalidates it,
+    so the pool discards it and the session's rollback does not try to use it."""
+    dialect = connection.dialect
+    lost = dialect.is_disconnect(error, connection.connection.driver_connection, None)
+    if lost and not connection.invalidated:
+        connection.invalidate(error)
+    return DBAPIError.instance(
+        statement, parameters, error, dialect.loaded_dbapi.Error, dialect=dialect, connection_invalidated=lost
+    )
 
 
 def _bind_processor(dialect: Dialect, column_type: TypeEngine[Any]) -> Callable[[Any], Any]:
@@ -282,15 +323,33 @@ _BIND_PROCESSORS: dict[tuple[str, str, int], Callable[[Any], Any]] = {}
 
 
 @contextmanager
-def pipelined(session: Session) -> Iterator[None]:
+def pipelined(session: Session, *, commit: bool = False) -> Iterator[None]:
     """Send the block's statements to PostgreSQL in one round trip (psycopg's pipeline mode);
-    no effect on SQLite, whose statements make no round trip."""
-    pipeline = getattr(session.connection().connection.driver_connection, "pipeline", None)
-    if pipeline is None:
+    no effect on SQLite, whose statements make no round trip.
+
+    The errors the database reports when the block ends (in pipeline mode, a failed statement's
+    error, or a lost connection, arrives then, not at the statement) are raised as SQLAlchemy's,
+    as a statement's are (``OperationalError`` …): a storage failure, never a bare driver error.
+
+    ``commit``: the block ends the session's transaction, its ``COMMIT`` going in the same round
+    trip (pending ORM changes are flushed first). Nothing may run in the session after the block
+    but its commit, which then finds the transaction ended (psycopg's commit of an idle connection
+    sends nothing). On SQLite the session commits as usual."""
+    connection = session.connection()
+    driver = connection.connection.driver_connection
+    pipeline = getattr(driver, "pipeline", None)
+    if driver is None or pipeline is None:
         yield
         return
-    with pipeline():
-        yield
+    try:
+        with pipeline():
+            yield
+            if commit:
+                session.flush()
+                with driver.cursor() as cursor:
+                    cursor.execute("COMMIT", prepare=False)
+    except connection.dialect.loaded_dbapi.Error as error:
+        raise _as_sqlalchemy_error(connection, "(pipeline)", (), error) from error
 
 
 @contextmanager

@@ -100,6 +100,8 @@ class ModelWrite:
 
     session: Session
     version: int
+    labels: dict[int, str] = field(default_factory=dict)
+    """The model's contexts' labels, read with its lock (a learned scene's answer names its context)."""
     version_saved: bool = False
     """Set by a service whose own statements stored :attr:`version` (a scene's state row)."""
     unchanged: bool = False
@@ -165,7 +167,7 @@ class ModelWriter:
     ) -> Iterator[ModelWrite]:
         """One write to the model, committed or undone (app/deps.py ``model_write`` documents the order).
         ``wait=False``: on PostgreSQL, raises ``LockHeldElsewhere`` at once, before anything else, if
-        another transaction holds the model's lock (``lda_repository.lock_version``).
+        another transaction holds the model's lock (``lda_repository.lock_model``).
 
         Under the database's lock (the model's state row, or SQLite's write lock, which this
         process's writers take turns to wait for: ``storage.database.write_turn``), taken first,
@@ -179,19 +181,19 @@ class ModelWriter:
         holding = False
         try:
             with write_turn(write_sessions), unit_of_work(write_sessions) as session:
-                stored = lda_repository.lock_version(session, self.id, wait=wait)  # the database's lock: wait here
+                locked = lda_repository.lock_model(session, self.id, wait=wait)  # the database's lock: wait here
                 self.lock.acquire()
                 holding = True
                 if self.deleted:
                     raise ModelNotFound(self.id)
                 if self.unavailable is not None:
                     registry.reload(self)
-                if stored is None:
+                if locked is None:
                     registry.forget(self)
                     raise ModelNotFound(self.id)
-                if stored != self.version:
+                if locked.version != self.version:
                     self._catch_up_for_write(session, registry)
-                write = ModelWrite(session, stored + 1)
+                write = ModelWrite(session, locked.version + 1, locked.labels)
                 self._writing = True
                 yield write
                 if not write.unchanged:

@@ -1,6 +1,6 @@
 """PostgreSQL's pipeline mode (``storage.database.pipelined``): the errors that arrive when a
 pipeline ends are storage failures like a statement's, and a pipeline that ends with the commit
-stores all of its statements or none."""
+stores all of its statements or none; ``lock_model`` reads the version and the labels with the lock."""
 
 from __future__ import annotations
 
@@ -14,7 +14,11 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.errors import is_storage_failure
 from storage.database import DriverStatements, create_database_engine, pipelined
+from storage.repositories import contexts as context_repository
+from storage.repositories import incremental_lda as lda_repository
+from storage.repositories import models as model_repository
 from storage.unit_of_work import unit_of_work
+from tests.conftest import BACKENDS, migrated_database
 
 
 @pytest.fixture
@@ -95,3 +99,24 @@ def test_a_pipeline_that_commits_stores_all_of_its_statements_or_none(postgres: 
     with unit_of_work(sessions) as session:
         _insert(session, 6)
     assert _stored(postgres) == [1, 2, 3, 6]
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_lock_model_reads_the_version_and_every_label(backend: str, request: pytest.FixtureRequest, tmp_path) -> None:
+    engine = create_database_engine(migrated_database(backend, request, tmp_path))
+    try:
+        sessions = sessionmaker(bind=engine)
+        with unit_of_work(sessions) as session:
+            model_repository.add_model(
+                session, model_id="m", name="m", seed=1, sigma=0.5, hyperparameters={}, vocabulary={}
+            )
+            lda_repository.create_state(session, "m", context_count=3, state={}, words=[])
+            lda_repository.set_version(session, "m", 7)
+            context_repository.set_context_label(session, "m", 0, "kitchen")
+            context_repository.set_context_label(session, "m", 2, "workshop")
+        with unit_of_work(sessions) as session:
+            locked = lda_repository.lock_model(session, "m", wait=False)
+            assert locked == lda_repository.LockedModel(version=7, labels={0: "kitchen", 2: "workshop"})
+            assert lda_repository.lock_model(session, "absent") is None
+    finally:
+        engine.dispose()

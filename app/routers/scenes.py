@@ -102,7 +102,7 @@ def _write_scene(
     """The prepared scene learned in one unit of work of its model (``wait``: app/deps.py ``model_write``)."""
     with model_write(state, model, wait=wait) as write:
         answer, replayed = scene_service.learn_scene(
-            write.session, model, write.version, prepared, idempotency_key, state.metrics
+            write.session, model, write.version, prepared, idempotency_key, write.labels, state.metrics
         )
         write.version_saved = write.notified = not replayed
         write.unchanged = replayed

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import hashlib
 import time
-from collections.abc import Callable
+from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from functools import partial
@@ -170,13 +170,15 @@ def learn_scene(
     version: int,
     prepared: PreparedScene,
     idempotency_key: str | None,
+    labels: Mapping[int, str],
     metrics: ModelEvents | None = None,
 ) -> tuple[str, bool]:
     """Learn the prepared scene online as the model's write ``version``; returns the answer (the
     ``SceneRead`` JSON, stored byte for byte) and whether it is a stored one (idempotent replay).
-    A learned scene stores ``version`` in its state row and sends the change notification in the
-    same round trip as its rows (the caller need not do either); ``metrics`` count the online
-    update once it is committed."""
+    ``labels`` are the model's contexts' labels, read with its lock (``ModelWrite.labels``).
+    A learned scene stores ``version`` in its state row, sends the change notification and
+    commits in one round trip with its rows (the caller must run nothing after it in the
+    session); ``metrics`` count the online update once it is committed."""
     body, request_hash = prepared.body, prepared.request_hash
     if idempotency_key is not None:
         stored = scene_repository.find_by_idempotency_key(session, model.id, idempotency_key)
@@ -192,9 +194,7 @@ def learn_scene(
     started = time.perf_counter()
     update = model.writer.learn_scene(words, partial(_kind, model, body))  # memory holds it until the commit
     update_seconds = time.perf_counter() - started
-    answer = _answer(
-        model, update, analysis, datetime.now(UTC), partial(context_repository.context_label, session, model.id)
-    )
+    answer = _answer(model, update, analysis, datetime.now(UTC), labels)
     answer_json = answer.model_dump_json()
     _save(session, model, update, first_token, version, answer, answer_json, idempotency_key, request_hash)
     if metrics is not None:
@@ -283,11 +283,11 @@ def _answer(
     update: SceneUpdate,
     analysis: SceneAnalysis,
     created_at: datetime,
-    labels: Callable[[int], str | None],
+    labels: Mapping[int, str],
 ) -> SceneRead:
     """The scene's answer, built without validation: every value is already of its field's
     type (Python ints, floats and strs; what validating them cost: docs/benchmarks.md).
-    ``labels`` gives a context's label (one primary-key read of the write's session)."""
+    ``labels``: the model's contexts' labels."""
     posterior = update.context_posterior
     map_context = int(np.argmax(posterior))
     return SceneRead.model_construct(
@@ -298,7 +298,7 @@ def _answer(
         previous_context_count=int(update.contexts_before),
         context_posterior=reported(posterior),
         map_context=map_context,
-        map_context_label=labels(map_context),
+        map_context_label=labels.get(map_context),
         objects=[
             ObjectAnalysis.model_construct(
                 level=result.level,
@@ -325,7 +325,8 @@ def _save(
     request_hash: bytes | None,
 ) -> None:
     first_word = len(model.word_kinds) - len(update.vocabulary_additions)
-    with pipelined(session):  # PostgreSQL: the scene's statements in one round trip, its notification too
+    # PostgreSQL: the scene's statements in one round trip, with its notification and the commit.
+    with pipelined(session, commit=True):
         _save_rows(
             session, model, update, first_token, first_word, version, answer, answer_json, idempotency_key, request_hash
         )

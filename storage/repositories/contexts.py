@@ -2,17 +2,25 @@
 
 from __future__ import annotations
 
-from sqlalchemy import delete, select
+from sqlalchemy import delete
 from sqlalchemy.orm import Session
 
-from storage.database import DriverStatements
+from storage.database import DriverStatements, QueuedRows
 from storage.models import ContextLabel, utc_now
 
 
 def context_labels(session: Session, model_id: str) -> dict[int, str]:
     """Every labelled context of ``model_id``: context index → label."""
-    rows = session.execute(select(ContextLabel.context, ContextLabel.label).where(ContextLabel.model_id == model_id))
-    return {context: label for context, label in rows}
+    return dict(submit_context_labels(DriverStatements(session), model_id).all())
+
+
+def submit_context_labels(driver: DriverStatements, model_id: str) -> QueuedRows:
+    """:func:`context_labels`' query, its rows read later (``DriverStatements.submit``): a write
+    reads the labels in the round trip that locks the model (``lock_model``)."""
+    return driver.submit(_SELECT_LABELS, (model_id,))
+
+
+_SELECT_LABELS = "SELECT context, label FROM context_label WHERE model_id = ?"
 
 
 def context_label(session: Session, model_id: str, context: int) -> str | None:

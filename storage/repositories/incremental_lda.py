@@ -25,8 +25,9 @@ from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session
 
 from storage.compression import pack_arrays, pack_small_arrays, unpack_arrays, unpack_small_arrays
-from storage.database import LOCK_NOT_AVAILABLE, DriverStatements
+from storage.database import LOCK_NOT_AVAILABLE, DriverStatements, QueuedRows, pipelined
 from storage.models import ContextWordCount, IncrementalLdaCheckpoint, IncrementalLdaState, Word, utc_now
+from storage.repositories.contexts import submit_context_labels
 
 
 @dataclass(frozen=True)
@@ -503,27 +504,44 @@ def stored_counts(session: Session, model_id: str) -> dict[tuple[int, int], int]
 
 
 class LockHeldElsewhere(Exception):
-    """``lock_version(..., wait=False)``: another transaction holds the model's lock (its state row)."""
+    """``lock_model(..., wait=False)``: another transaction holds the model's lock (its state row)."""
 
 
-def lock_version(session: Session, model_id: str, *, wait: bool = True) -> int | None:
-    """The model's stored version, with the model locked for this transaction's writes (None: no
-    such model). PostgreSQL locks the state row (``FOR UPDATE``, which waits for the lock and then
-    reads the row's newest version); SQLite's write transactions already hold the database's write
-    lock (``BEGIN IMMEDIATE``).
+@dataclass(frozen=True)
+class LockedModel:
+    """A model locked for this transaction's writes (:func:`lock_model`)."""
+
+    version: int
+    """Its stored version."""
+    labels: dict[int, str]
+    """Its contexts' labels (context index → label), which a learned scene's answer names."""
+
+
+def lock_model(session: Session, model_id: str, *, wait: bool = True) -> LockedModel | None:
+    """The model locked for this transaction's writes, with its stored version and its contexts'
+    labels (None: no such model). PostgreSQL locks the state row (``FOR UPDATE``, which waits for
+    the lock and then reads the row's newest version), and the transaction's ``BEGIN``, the lock
+    and the labels' read (run after the lock is held) go in one round trip; SQLite's write
+    transactions already hold the database's write lock (``BEGIN IMMEDIATE``).
 
     ``wait=False``: on PostgreSQL, raises :class:`LockHeldElsewhere` at once (``NOWAIT``; the
     transaction is then aborted) instead of waiting for a lock that another transaction holds;
     on SQLite, the same as ``wait=True``."""
     driver = DriverStatements(session)
     lock = "" if driver.dialect.name != "postgresql" else " FOR UPDATE" if wait else " FOR UPDATE NOWAIT"
+    queued: list[QueuedRows] = []
     try:
-        row = driver.fetchone(_SELECT_VERSION + lock, (model_id,))
+        with pipelined(session):
+            queued.append(driver.submit(_SELECT_VERSION + lock, (model_id,)))
+            queued.append(submit_context_labels(driver, model_id))
     except DBAPIError as error:
+        for rows in queued:
+            rows.close()
         if not wait and getattr(error.orig, "sqlstate", None) == LOCK_NOT_AVAILABLE:
             raise LockHeldElsewhere(model_id) from error
         raise
-    return None if row is None else int(row[0])
+    version, labels = (rows.all() for rows in queued)
+    return None if not version else LockedModel(int(version[0][0]), dict(labels))
 
 
 def stored_version(session: Session, model_id: str) -> int | None:

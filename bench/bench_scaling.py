@@ -18,7 +18,8 @@ checks like bench_service's):
   scene is reported, never retried. The bodies are encoded as JSON before the
   clock starts (a robot's encoding is its own CPU, not the server's), and the
   connections are opened one after the other, as robots coming online do (at
-  once, the first worker to wake accepted them all). Where the 2 cores' time
+  once, the first worker to wake accepted them all). ``--keyed``: each scene
+  with a fresh ``Idempotency-Key``, as the robot-side bridge posts them. Where the 2 cores' time
   went is read from ``/proc`` around each run: CPU milliseconds per scene of the
   server processes, of the PostgreSQL backends serving this database (their
   command line names it), of PostgreSQL's shared processes (WAL writer,
@@ -41,6 +42,7 @@ from __future__ import annotations
 import argparse
 import collections
 import http.client
+import itertools
 import json
 import os
 import re
@@ -52,6 +54,7 @@ import tempfile
 import threading
 import time
 import traceback
+import uuid
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, TypedDict
@@ -274,13 +277,18 @@ class CpuMeter:
 
 
 def _spread(
-    targets: list[tuple[ScalingServer, str]], parts: list[list[dict]], database: str | None = None
+    targets: list[tuple[ScalingServer, str]],
+    parts: list[list[dict]],
+    database: str | None = None,
+    *,
+    keyed: bool = False,
 ) -> dict[str, Any]:
     """One thread and one keep-alive connection per (server, model id), each posting its part.
 
     Each connection's first scene is posted before the clock starts (it opens the connection), one
     connection after the other; then, for servers with several workers, which worker holds each
-    connection is read from /proc. ``database``: the PostgreSQL database whose backends' CPU counts."""
+    connection is read from /proc. ``database``: the PostgreSQL database whose backends' CPU counts.
+    ``keyed``: each scene with a fresh ``Idempotency-Key`` (unique to this run, client and scene)."""
     count = len(targets)
     connected, go = threading.Barrier(count + 1), threading.Barrier(count + 1)
     finished, counted = threading.Barrier(count + 1), threading.Barrier(count + 1)
@@ -291,6 +299,7 @@ def _spread(
     statuses: collections.Counter[Any] = collections.Counter()
     latencies: list[float] = []
     lock = threading.Lock()
+    run_token = uuid.uuid4().hex
 
     def run(index: int) -> None:
         server, model_id = targets[index]
@@ -298,12 +307,15 @@ def _spread(
         path, headers = f"/v1/models/{model_id}/scenes", {"Content-Type": "application/json"}
         own_latencies: list[float] = []
         own_statuses: collections.Counter[Any] = collections.Counter()
+        sent = itertools.count()
 
         bodies = [json.dumps(body).encode() for body in parts[index]]
 
         def post(body: bytes) -> None:
             start = time.perf_counter()
             reconnections[index] += connection.sock is None  # closed by the server, or after an error
+            if keyed:
+                headers["Idempotency-Key"] = f"{run_token}-{index}-{next(sent)}"
             try:
                 connection.request("POST", path, body=body, headers=headers)
                 response = connection.getresponse()
@@ -497,7 +509,14 @@ def _catch_up_figures(times: list[float], base_ms: float, scenes: int) -> dict[s
 
 
 def run_backend(
-    backend: str, url: str, folder: Path, data: dict, sizes: ScalingSizes, pending: Future | None
+    backend: str,
+    url: str,
+    folder: Path,
+    data: dict,
+    sizes: ScalingSizes,
+    pending: Future | None,
+    *,
+    keyed: bool = False,
 ) -> dict[str, Any]:
     """(a) on process A alone; (b) on a ``--workers 2`` server while A idles; (c) on A and a replica
     B, with C started beside them for the catch-up's full-load reference; then (a) again on A alone.
@@ -525,7 +544,7 @@ def run_backend(
 
     def measure(name: str, targets: list[tuple[ScalingServer, str]]) -> None:
         phase(name)
-        throughput[name] = figures = _spread(targets, parts, database)
+        throughput[name] = figures = _spread(targets, parts, database, keyed=keyed)
         print(f"    {figures['scenes_per_second']:.1f} scenes/s {json.dumps(figures)}", flush=True)
 
     database = make_url(url).database if backend == "postgresql" else None
@@ -656,6 +675,9 @@ def main() -> dict:
         help="SQLite's durability: FULL (the default, as served) or NORMAL (no fsync at commit: a power loss "
         "may lose the last acknowledged scenes)",
     )
+    parser.add_argument(
+        "--keyed", action="store_true", help="each scene with a fresh Idempotency-Key, as the robot-side bridge posts"
+    )
     args = parser.parse_args(sys.argv[1:])
     ScalingServer.sqlite_synchronous = args.sqlite_synchronous
     sizes: ScalingSizes = (
@@ -684,6 +706,7 @@ def main() -> dict:
         "goals": GOALS,
         "cpus": os.cpu_count(),
         "sqlite_synchronous": args.sqlite_synchronous,
+        "keyed": args.keyed,
     }
     results["load_average_before"] = os.getloadavg()
     began = time.perf_counter()
@@ -719,7 +742,8 @@ def main() -> dict:
         print(f"in-process pipeline {pipeline:.2f} ms a scene (previous session 0.37 ms)", flush=True)
         for backend, url in reachable.items():
             try:
-                results[backend] = run_backend(backend, url, folder, data, sizes, pending if backend == first else None)
+                pending_start = pending if backend == first else None
+                results[backend] = run_backend(backend, url, folder, data, sizes, pending_start, keyed=args.keyed)
             except Exception as error:  # noqa: BLE001 - reported, and the other backend still runs
                 traceback.print_exc()
                 results[backend] = {"error": f"{type(error).__name__}: {error}"}

@@ -162,7 +162,9 @@ WriteSessionDep = Annotated[Session, Depends(write_session, scope="function")]
 
 
 @contextmanager
-def model_write(state: AppState, model: ModelRuntime, *, wait: bool = True) -> Iterator[ModelWrite]:
+def model_write(
+    state: AppState, model: ModelRuntime, *, wait: bool = True, idempotency_key: str | None = None
+) -> Iterator[ModelWrite]:
     """The unit of work of a write to ``model`` (docs/scaling.md): the model's writer runs it
     (``ModelWriter.transaction`` in app/registry.py), and here its storage failures are counted
     and answered as a 503 ``storage_unavailable``, or ``storage_busy`` when the database's lock
@@ -186,9 +188,12 @@ def model_write(state: AppState, model: ModelRuntime, *, wait: bool = True) -> I
     ``sqlite3`` shell), the model's reads go on, from memory that still equals the database.
     ``wait=False`` (a scene on its scene thread, app/routers/scenes.py): on PostgreSQL, a lock held
     by another transaction raises ``LockHeldElsewhere`` at once instead (nothing changed, nothing counted).
+    ``idempotency_key``: a keyed scene's key, looked up with the lock (``ModelWrite.locked``).
     """
     try:
-        with model.writer.transaction(state.write_sessions, state.registry, wait=wait) as write:
+        with model.writer.transaction(
+            state.write_sessions, state.registry, wait=wait, idempotency_key=idempotency_key
+        ) as write:
             yield write
         state.storage.record_success()
     except BaseException as error:

@@ -100,8 +100,9 @@ class ModelWrite:
 
     session: Session
     version: int
-    labels: dict[int, str] = field(default_factory=dict)
-    """The model's contexts' labels, read with its lock (a learned scene's answer names its context)."""
+    locked: lda_repository.LockedModel
+    """What was read with the model's lock: its contexts' labels (a learned scene's answer names
+    its context) and, for a keyed write, the scene already stored under its key."""
     version_saved: bool = False
     """Set by a service whose own statements stored :attr:`version` (a scene's state row)."""
     unchanged: bool = False
@@ -163,11 +164,18 @@ class ModelWriter:
 
     @contextmanager
     def transaction(
-        self, write_sessions: sessionmaker[Session], registry: ModelRegistry, *, wait: bool = True
+        self,
+        write_sessions: sessionmaker[Session],
+        registry: ModelRegistry,
+        *,
+        wait: bool = True,
+        idempotency_key: str | None = None,
     ) -> Iterator[ModelWrite]:
         """One write to the model, committed or undone (app/deps.py ``model_write`` documents the order).
         ``wait=False``: on PostgreSQL, raises ``LockHeldElsewhere`` at once, before anything else, if
         another transaction holds the model's lock (``lda_repository.lock_model``).
+        ``idempotency_key``: the key of the scene the write learns, looked up with the lock
+        (``ModelWrite.locked``), in the lock's round trip.
 
         Under the database's lock (the model's state row, or SQLite's write lock, which this
         process's writers take turns to wait for: ``storage.database.write_turn``), taken first,
@@ -181,7 +189,7 @@ class ModelWriter:
         holding = False
         try:
             with write_turn(write_sessions), unit_of_work(write_sessions) as session:
-                locked = lda_repository.lock_model(session, self.id, wait=wait)  # the database's lock: wait here
+                locked = lda_repository.lock_model(session, self.id, wait=wait, idempotency_key=idempotency_key)
                 self.lock.acquire()
                 holding = True
                 if self.deleted:
@@ -193,7 +201,7 @@ class ModelWriter:
                     raise ModelNotFound(self.id)
                 if locked.version != self.version:
                     self._catch_up_for_write(session, registry)
-                write = ModelWrite(session, locked.version + 1, locked.labels)
+                write = ModelWrite(session, locked.version + 1, locked)
                 self._writing = True
                 yield write
                 if not write.unchanged:

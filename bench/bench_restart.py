@@ -106,7 +106,7 @@ def build(
                     key = f"{learned:032x}" if keyed else None
                     read = scene_service.read_scene(model, bodies[learned % len(bodies)], key)
                     prepared = scene_service.prepare_scene(model, read)
-                    scene_service.learn_scene(write.session, model, write.version, prepared, key, write.labels)
+                    scene_service.learn_scene(write.session, model, write.version, prepared, key, write.locked)
                     learned += 1
                 write.version_saved = True
             if learned % 50_000 < BATCH:

@@ -239,7 +239,7 @@ def test_feedback_prepared_before_the_write_is_used_only_while_memory_stands_whe
 
     def learn(model: ModelRuntime, prepared: PreparedScene) -> dict:
         with model_write(state, model) as write:
-            answer, _ = learn_scene(write.session, model, write.version, prepared, None, write.labels)
+            answer, _ = learn_scene(write.session, model, write.version, prepared, None, write.locked)
         return json.loads(answer)
 
     stale_model, fresh_model = models

@@ -1,6 +1,6 @@
 """PostgreSQL's pipeline mode (``storage.database.pipelined``): the errors that arrive when a
 pipeline ends are storage failures like a statement's, and a pipeline that ends with the commit
-stores all of its statements or none; ``lock_model`` reads the version and the labels with the lock."""
+stores all of its statements or none; ``lock_model`` reads the version, the labels and a keyed scene with the lock."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from storage.database import DriverStatements, create_database_engine, pipelined
 from storage.repositories import contexts as context_repository
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import models as model_repository
+from storage.repositories import scenes as scene_repository
 from storage.unit_of_work import unit_of_work
 from tests.conftest import BACKENDS, migrated_database
 
@@ -114,9 +115,18 @@ def test_lock_model_reads_the_version_and_every_label(backend: str, request: pyt
             lda_repository.set_version(session, "m", 7)
             context_repository.set_context_label(session, "m", 0, "kitchen")
             context_repository.set_context_label(session, "m", 2, "workshop")
+            row = {"request_hash": b"h" * 32, "context_count": 3, "map_context": 2, "context_posterior": [0, 0, 1]}
+            scene_repository.add_scene(session, "m", 0, idempotency_key="k", answer='{"id":0}', **row)
+        labels = {0: "kitchen", 2: "workshop"}
         with unit_of_work(sessions) as session:
             locked = lda_repository.lock_model(session, "m", wait=False)
-            assert locked == lda_repository.LockedModel(version=7, labels={0: "kitchen", 2: "workshop"})
+            assert locked == lda_repository.LockedModel(version=7, labels=labels)
             assert lda_repository.lock_model(session, "absent") is None
+            # A keyed scene's key is looked up with the lock: a retry finds the stored answer.
+            retried = lda_repository.lock_model(session, "m", idempotency_key="k")
+            stored = scene_repository.StoredAnswer(0, b"h" * 32, '{"id":0}')
+            assert retried == lda_repository.LockedModel(7, labels, "k", stored)
+            fresh = lda_repository.lock_model(session, "m", idempotency_key="new")
+            assert fresh == lda_repository.LockedModel(7, labels, "new", None)
     finally:
         engine.dispose()

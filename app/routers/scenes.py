@@ -100,9 +100,9 @@ def _write_scene(
     wait: bool,
 ) -> tuple[str, bool]:
     """The prepared scene learned in one unit of work of its model (``wait``: app/deps.py ``model_write``)."""
-    with model_write(state, model, wait=wait) as write:
+    with model_write(state, model, wait=wait, idempotency_key=idempotency_key) as write:
         answer, replayed = scene_service.learn_scene(
-            write.session, model, write.version, prepared, idempotency_key, write.labels, state.metrics
+            write.session, model, write.version, prepared, idempotency_key, write.locked, state.metrics
         )
         write.version_saved = write.notified = not replayed
         write.unchanged = replayed

@@ -66,7 +66,7 @@ from storage.repositories import contexts as context_repository
 from storage.repositories import feed as feed_repository
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import scenes as scene_repository
-from storage.repositories.incremental_lda import SceneChanges, StoredCheckpoint
+from storage.repositories.incremental_lda import LockedModel, SceneChanges, StoredCheckpoint
 from storage.unit_of_work import after_commit
 
 
@@ -170,18 +170,22 @@ def learn_scene(
     version: int,
     prepared: PreparedScene,
     idempotency_key: str | None,
-    labels: Mapping[int, str],
+    locked: LockedModel,
     metrics: ModelEvents | None = None,
 ) -> tuple[str, bool]:
     """Learn the prepared scene online as the model's write ``version``; returns the answer (the
     ``SceneRead`` JSON, stored byte for byte) and whether it is a stored one (idempotent replay).
-    ``labels`` are the model's contexts' labels, read with its lock (``ModelWrite.labels``).
+    ``locked``: what the write read with the model's lock (``ModelWrite.locked``): the labels of
+    its contexts, and the scene stored under ``idempotency_key`` if the lock's read looked that key up.
     A learned scene stores ``version`` in its state row, sends the change notification and
     commits in one round trip with its rows (the caller must run nothing after it in the
     session); ``metrics`` count the online update once it is committed."""
     body, request_hash = prepared.body, prepared.request_hash
     if idempotency_key is not None:
-        stored = scene_repository.find_by_idempotency_key(session, model.id, idempotency_key)
+        if locked.idempotency_key == idempotency_key:
+            stored = locked.stored_under_key
+        else:  # a write of several keyed scenes (bench_restart): looked up here, a round trip of its own
+            stored = scene_repository.find_by_idempotency_key(session, model.id, idempotency_key)
         if stored is not None:
             if stored.request_hash != request_hash:
                 raise IdempotencyKeyReused(idempotency_key)
@@ -194,7 +198,7 @@ def learn_scene(
     started = time.perf_counter()
     update = model.writer.learn_scene(words, partial(_kind, model, body))  # memory holds it until the commit
     update_seconds = time.perf_counter() - started
-    answer = _answer(model, update, analysis, datetime.now(UTC), labels)
+    answer = _answer(model, update, analysis, datetime.now(UTC), locked.labels)
     answer_json = answer.model_dump_json()
     _save(session, model, update, first_token, version, answer, answer_json, idempotency_key, request_hash)
     if metrics is not None:

@@ -28,6 +28,7 @@ from storage.compression import pack_arrays, pack_small_arrays, unpack_arrays, u
 from storage.database import LOCK_NOT_AVAILABLE, DriverStatements, QueuedRows, pipelined
 from storage.models import ContextWordCount, IncrementalLdaCheckpoint, IncrementalLdaState, Word, utc_now
 from storage.repositories.contexts import submit_context_labels
+from storage.repositories.scenes import StoredAnswer, stored_answer, submit_find_by_idempotency_key
 
 
 @dataclass(frozen=True)
@@ -515,14 +516,21 @@ class LockedModel:
     """Its stored version."""
     labels: dict[int, str]
     """Its contexts' labels (context index → label), which a learned scene's answer names."""
+    idempotency_key: str | None = None
+    """The key looked up with the lock (the key of the scene this write learns), if any."""
+    stored_under_key: StoredAnswer | None = None
+    """The scene already stored under :attr:`idempotency_key` (the write is a retry), or None."""
 
 
-def lock_model(session: Session, model_id: str, *, wait: bool = True) -> LockedModel | None:
+def lock_model(
+    session: Session, model_id: str, *, wait: bool = True, idempotency_key: str | None = None
+) -> LockedModel | None:
     """The model locked for this transaction's writes, with its stored version and its contexts'
-    labels (None: no such model). PostgreSQL locks the state row (``FOR UPDATE``, which waits for
-    the lock and then reads the row's newest version), and the transaction's ``BEGIN``, the lock
-    and the labels' read (run after the lock is held) go in one round trip; SQLite's write
-    transactions already hold the database's write lock (``BEGIN IMMEDIATE``).
+    labels (None: no such model), and with ``idempotency_key`` the scene stored under that key.
+    PostgreSQL locks the state row (``FOR UPDATE``, which waits for the lock and then reads the
+    row's newest version), and the lock and the reads (run after the lock is held, so they see
+    every write committed before it) go in one round trip; SQLite's write transactions already
+    hold the database's write lock (``BEGIN IMMEDIATE``).
 
     ``wait=False``: on PostgreSQL, raises :class:`LockHeldElsewhere` at once (``NOWAIT``; the
     transaction is then aborted) instead of waiting for a lock that another transaction holds;
@@ -534,14 +542,19 @@ def lock_model(session: Session, model_id: str, *, wait: bool = True) -> LockedM
         with pipelined(session):
             queued.append(driver.submit(_SELECT_VERSION + lock, (model_id,)))
             queued.append(submit_context_labels(driver, model_id))
+            if idempotency_key is not None:
+                queued.append(submit_find_by_idempotency_key(driver, model_id, idempotency_key))
     except DBAPIError as error:
         for rows in queued:
             rows.close()
         if not wait and getattr(error.orig, "sqlstate", None) == LOCK_NOT_AVAILABLE:
             raise LockHeldElsewhere(model_id) from error
         raise
-    version, labels = (rows.all() for rows in queued)
-    return None if not version else LockedModel(int(version[0][0]), dict(labels))
+    version, labels, *keyed = (rows.all() for rows in queued)
+    if not version:
+        return None
+    stored_under_key = stored_answer(keyed[0]) if keyed else None
+    return LockedModel(int(version[0][0]), dict(labels), idempotency_key, stored_under_key)
 
 
 def stored_version(session: Session, model_id: str) -> int | None:

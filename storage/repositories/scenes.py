@@ -10,7 +10,7 @@ from sqlalchemy import Row, func, select
 from sqlalchemy.orm import Session
 
 from storage.compression import decompress_answer
-from storage.database import DriverStatements
+from storage.database import DriverStatements, QueuedRows
 from storage.models import Scene, utc_now
 
 
@@ -69,8 +69,21 @@ def find_by_idempotency_key(session: Session, model_id: str, key: str) -> Stored
     """The scene stored under ``key``, straight through the driver: the look-up runs before every
     keyed scene (a robot's bridge keys them all), and the ORM's cost on PostgreSQL (docs/benchmarks.md)
     was not worth it."""
-    row = DriverStatements(session).fetchone(_FIND_BY_KEY, (model_id, key))
-    return None if row is None else StoredAnswer(row[0], bytes(row[1]), decompress_answer(bytes(row[2])))
+    return stored_answer(submit_find_by_idempotency_key(DriverStatements(session), model_id, key).all())
+
+
+def submit_find_by_idempotency_key(driver: DriverStatements, model_id: str, key: str) -> QueuedRows:
+    """The look-up of :func:`find_by_idempotency_key`, queued (``DriverStatements.submit``): in a
+    pipeline it goes with the model's lock (``lock_model``); its rows go to :func:`stored_answer`."""
+    return driver.submit(_FIND_BY_KEY, (model_id, key))
+
+
+def stored_answer(rows: Sequence[tuple[Any, ...]]) -> StoredAnswer | None:
+    """The rows of the key's look-up as the scene stored under it, or None."""
+    if not rows:
+        return None
+    scene_id, request_hash, answer_zlib = rows[0]
+    return StoredAnswer(scene_id, bytes(request_hash), decompress_answer(bytes(answer_zlib)))
 
 
 _FIND_BY_KEY = "SELECT id, request_hash, answer_zlib FROM scene WHERE model_id = ? AND idempotency_key = ?"

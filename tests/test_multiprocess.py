@@ -13,13 +13,17 @@ retrying 503s. What must hold:
 - every process reports the same ``scene_count``, ``context_count`` and
   ``/contexts``;
 - a model created on one process is usable on the other at once; a model
-  deleted on one is a 404 on the other at once.
+  deleted on one is a 404 on the other at once;
+- one keyed scene sent to both processes at once is learned once, and every
+  other copy replays its answer.
 """
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import httpx
@@ -193,3 +197,51 @@ def test_workers_of_one_server_agree(tmp_path: Path) -> None:
         for _ in range(FRESH_CONNECTIONS):
             gone = httpx.get(f"{server.base_url}/v1/models/{doomed}", timeout=20)
             assert gone.status_code == 404, gone.text
+
+
+#: Rounds of one keyed scene sent at once to both processes, twice to each (a robot that retried
+#: a scene whose answer it did not see, through another replica, while the first was under way).
+DUPLICATE_ROUNDS = 12
+
+
+def test_one_keyed_scene_sent_to_both_processes_at_once_is_learned_once(two_servers: list[ServerProcess]) -> None:
+    # The key is looked up under the model's lock (in the lock's own round trip), so of the copies
+    # racing for it one learns the scene and every other one replays that answer, byte for byte.
+    first, second = two_servers
+    model_id = create_model(first.base_url, FAST_HYPERPARAMETERS, name="duplicates")
+    targets = [first.base_url, second.base_url] * 2
+    clients = [httpx.Client(base_url=base_url, timeout=30) for base_url in targets]
+    scenes = concept_scenes(DUPLICATE_ROUNDS, seed=77)
+    try:
+        with ThreadPoolExecutor(len(clients)) as pool:
+            for round_index, scene in enumerate(scenes):
+                start = threading.Barrier(len(clients))
+                key = f"duplicate-{round_index}"
+
+                def post(client: httpx.Client, scene: dict = scene, key: str = key, start=start) -> httpx.Response:
+                    start.wait()
+                    deadline = time.monotonic() + POSTING_SECONDS
+                    while True:  # a 503 (a lock wait that ran out) is retried, as a robot's bridge does
+                        response = client.post(
+                            f"/v1/models/{model_id}/scenes", json=scene, headers={"Idempotency-Key": key}
+                        )
+                        if response.status_code != 503 or time.monotonic() > deadline:
+                            return response
+                        time.sleep(float(response.headers.get("Retry-After", "1")) / 10)
+
+                answers = list(pool.map(post, clients))
+                assert [answer.status_code for answer in answers] == [201] * len(clients), [a.text for a in answers]
+                learned = [answer for answer in answers if answer.headers.get("Idempotent-Replayed") != "true"]
+                assert len(learned) == 1, f"round {round_index}: {len(learned)} copies learned"
+                assert {answer.content for answer in answers} == {learned[0].content}
+                assert learned[0].json()["scene_id"] == round_index
+        reused = clients[1].post(
+            f"/v1/models/{model_id}/scenes", json=scenes[1], headers={"Idempotency-Key": "duplicate-0"}
+        )
+        assert reused.status_code == 422 and reused.json()["error"] == "idempotency_key_reused", reused.text
+    finally:
+        for client in clients:
+            client.close()
+    for base_url in (first.base_url, second.base_url):
+        status, model, _ = model_summary(base_url, model_id)
+        assert status == 200 and model is not None and model["scene_count"] == DUPLICATE_ROUNDS, model

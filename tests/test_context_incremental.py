@@ -292,6 +292,23 @@ def test_corrupted_state_is_refused() -> None:
     wrong_offsets = ContextModelState(**{**state.__dict__, "doc_offsets": state.doc_offsets[:-1]})
     with pytest.raises(InvalidInputError, match="state"):
         IncrementalLDA.from_state(wrong_offsets)
+    # A word id 2**32 + 1 would become 1, a valid id, if the cast to int32 wrapped it silently.
+    wrapped = ContextModelState(**{**state.__dict__, "words": state.words.astype(np.int64) + 2**32})
+    with pytest.raises(InvalidInputError, match="state.words: holds values outside the 32-bit integer range"):
+        IncrementalLDA.from_state(wrapped)
+
+
+def test_a_model_restored_from_a_state_never_shares_its_arrays() -> None:
+    # from_state no longer copies int32 arrays before the model takes them (a start at a million
+    # scenes holds ~78 million tokens, 312 MB an array): the model's own are still copies.
+    model = IncrementalLDA(seed=0, **ONLINE)
+    _learn_online(model, _paper_scenes(5, 0))
+    state = model.to_state()
+    assert state.words.dtype == state.assignments.dtype == np.int32
+    restored = IncrementalLDA.from_state(state)
+    restored.lda_state.assignments[:] = 0
+    assert np.array_equal(state.assignments, model.lda_state.assignments)
+    assert np.array_equal(IncrementalLDA.from_state(state).lda_state.assignments, model.lda_state.assignments)
 
 
 def test_infer_scene_draws_what_a_fresh_generator_of_its_seed_draws() -> None:

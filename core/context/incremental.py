@@ -497,7 +497,14 @@ def _validated_seed(seed: Any) -> int:
 
 
 def _state_array(values: Any, field_name: str) -> np.ndarray:
+    """``values`` as int32, without a copy when they are int32 already (a start at a million
+    scenes holds ~78 million tokens: each copy of one of their arrays is 312 MB), refusing values
+    that int32 cannot hold instead of letting the cast wrap them into range."""
     array = np.asarray(values)
     if array.ndim != 1 or (array.size and not np.issubdtype(array.dtype, np.integer)):
         raise InvalidInputError(field_name, "must be a one-dimensional integer array")
-    return array.astype(np.int32)
+    if array.dtype.itemsize > 4 or array.dtype == np.uint32:
+        bounds = np.iinfo(np.int32)
+        if array.size and (array.min() < bounds.min or array.max() > bounds.max):
+            raise InvalidInputError(field_name, "holds values outside the 32-bit integer range")
+    return array.astype(np.int32, copy=False)

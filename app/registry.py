@@ -41,7 +41,6 @@ from core.concept_web import ConceptWeb
 from core.context.hyperparameters import nest_flat_settings
 from core.context.incremental import ContextModelState, IncrementalLDA, SceneUpdate
 from core.context.k_selection import K_RULES
-from core.context.lda import context_word_counts
 from core.errors import InvalidInputError
 from core.planning import BehaviourEffects, Workspace, learn_effects
 from core.prototypes.prototypes import PrototypeSet
@@ -540,7 +539,7 @@ def stored_incremental_lda(stored: lda_repository.StoredStart, hyperparameters: 
             words=base.words,
             assignments=base.contexts,
             doc_offsets=base.doc_offsets,
-            n_kw=_counts(base.words, base.contexts, n_contexts, n_words),
+            n_kw=None,  # checked below, once the tail is on, against the stored n_kw entries
             rng_state=stored.state["rng_state"],
         )
     )
@@ -563,14 +562,6 @@ def stored_incremental_lda(stored: lda_repository.StoredStart, hyperparameters: 
     if not np.array_equal(n_kw, state.n_kw):
         raise InvalidInputError("state.n_kw", "differs from the counts of the stored assignments")
     return incremental_lda
-
-
-def _counts(words: np.ndarray, contexts: np.ndarray, n_contexts: int, n_words: int) -> np.ndarray:
-    """n_kw (K × |W|) of these assignments."""
-    try:
-        return context_word_counts(words, contexts, n_contexts, n_words)
-    except ValueError:
-        raise InvalidInputError("state", "a token names a context or concept outside the checkpoint's") from None
 
 
 def catch_up(session: Session, writer: ModelWriter) -> bool:

@@ -16,7 +16,7 @@ import numpy as np
 
 from core.concept_web import ConceptWeb, loopy_belief_propagation
 from core.context import IncrementalLDA
-from core.context.lda import LANES_FROM_CONTEXTS, LDAState, context_word_counts
+from core.context.lda import LANES_FROM_CONTEXTS, LDAState
 from core.features.layout import EFFECT_SIZE, ENTITY_SIZE
 from core.prototypes import fit_prototypes
 from sim.world import World
@@ -46,7 +46,6 @@ def compile_kernels_beyond_the_warm_up() -> None:
     state.conditional_entropy()
     LDAState.from_arrays(state.alpha, state.xi, state.vocab_size, state.n_contexts, state.words,
                          state.assignments, state.doc_offsets)  # fmt: skip
-    context_word_counts(state.words, state.assignments, state.n_contexts, state.vocab_size)
     words = rng.integers(0, 29, size=400).astype(np.int32)
     for kernel in ("dense", "lanes", "sparse"):
         state = LDAState(0.1, 0.1, 29, LANES_FROM_CONTEXTS)

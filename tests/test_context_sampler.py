@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.special import gammaln
 
-from core.context.lda import LDAState, context_word_counts
+from core.context.lda import LDAState
 
 
 def _state(docs: list[list[int]], vocab_size: int, n_contexts: int, alpha: float = 0.5, xi: float = 0.5) -> LDAState:
@@ -225,16 +225,3 @@ def test_online_scene_update_equals_its_steps_one_after_the_other(seed: int) -> 
             assert np.array_equal(fused.n_wk, stepped.n_wk) and np.array_equal(fused.n_dk, stepped.n_dk)
         assert fused.invariant_violations() == []
         assert fused_rng.random() == stepped_rng.random()  # the same number of draws
-
-
-def test_context_word_counts_count_every_token_once_and_refuse_indices_outside_the_tables() -> None:
-    rng = np.random.default_rng(3)
-    words = rng.integers(0, 29, size=5_000).astype(np.int32)
-    contexts = rng.integers(0, 4, size=5_000).astype(np.int32)
-    counts = context_word_counts(words, contexts, 4, 29)
-    expected = np.zeros((4, 29), dtype=np.int64)
-    np.add.at(expected, (contexts, words), 1)
-    assert counts.dtype == np.int32 and np.array_equal(counts, expected)
-    for bad_words, bad_contexts in ((words, contexts + 1), (words + 1, contexts), (words - 1, contexts)):
-        with pytest.raises(ValueError, match="outside the tables"):
-            context_word_counts(bad_words, bad_contexts, 4, 29)

@@ -38,11 +38,3 @@ def count_assignments(
         n_wk[words[token], context] += 1
         n_k[context] += 1
         n_dk[token_scene[token], context] += 1
-
-
-@numba.njit(cache=True, nogil=True)
-def count_context_words(words: np.ndarray, contexts: np.ndarray, n_kw: np.ndarray) -> None:
-    """Add every token to ``n_kw[context, word]`` (the table must be zero where the counts go and
-    every index in range: the caller checks)."""
-    for token in range(words.shape[0]):
-        n_kw[contexts[token], words[token]] += 1

@@ -76,8 +76,10 @@ class ContextModelState:
     """Context of every token (int32)."""
     doc_offsets: np.ndarray
     """Scene d owns tokens doc_offsets[d]:doc_offsets[d + 1] (int32, |D| + 1 entries)."""
-    n_kw: np.ndarray
-    """Concept counts per context, K × |W| (int32): redundant with the assignments, checked on restore."""
+    n_kw: np.ndarray | None
+    """Concept counts per context, K × |W| (int32): redundant with the assignments, checked on
+    restore; None when the caller checks the restored counts itself (a server's start checks them
+    against the stored count rows: a count over the whole corpus less at a million scenes)."""
     rng_state: dict[str, Any] = field(default_factory=dict)
 
 
@@ -366,7 +368,7 @@ class IncrementalLDA:
         state = LDAState.from_arrays(
             h.priors.alpha, h.priors.xi, len(model._vocabulary), int(n_contexts), words, assignments, offsets
         )
-        if not np.array_equal(np.asarray(saved.n_kw), state.n_kw):
+        if saved.n_kw is not None and not np.array_equal(np.asarray(saved.n_kw), state.n_kw):
             raise InvalidInputError("state.n_kw", "differs from the counts of the stored assignments")
         model._state = state
         try:

@@ -125,18 +125,6 @@ def _with_capacity(array: np.ndarray, rows: int, columns: int | None = None) -> 
     return grown
 
 
-def context_word_counts(words: np.ndarray, contexts: np.ndarray, n_contexts: int, vocab_size: int) -> np.ndarray:
-    """n_kw (K × |W|, int32) of tokens with these words and contexts, in one pass (a bincount of
-    ``contexts * |W| + words`` would build int64 temporaries of the corpus's length)."""
-    if words.size and (
-        min(int(words.min()), int(contexts.min())) < 0 or contexts.max() >= n_contexts or words.max() >= vocab_size
-    ):
-        raise ValueError("a token names a context or a word outside the tables")
-    counts = np.zeros((n_contexts, vocab_size), dtype=np.int32)
-    count_kernels.count_context_words(words, contexts, counts)
-    return counts
-
-
 def layout_problems(
     words: np.ndarray, assignments: np.ndarray, doc_offsets: np.ndarray, vocab_size: int, n_contexts: int
 ) -> list[str]:

@@ -311,6 +311,24 @@ def test_a_model_restored_from_a_state_never_shares_its_arrays() -> None:
     assert np.array_equal(IncrementalLDA.from_state(state).lda_state.assignments, model.lda_state.assignments)
 
 
+def test_a_state_of_narrow_arrays_restores_the_same_model() -> None:
+    # A checkpoint is read back in the narrowest types that hold its values (uint8 here): the model
+    # widens them as it copies them, and continues exactly as from the int32 arrays.
+    model = IncrementalLDA(seed=0, **ONLINE)
+    _learn_online(model, _paper_scenes(8, 0))
+    state = model.to_state()
+    narrow = ContextModelState(
+        **{**state.__dict__, "words": state.words.astype(np.uint8), "assignments": state.assignments.astype(np.uint8)}
+    )
+    restored, reference = IncrementalLDA.from_state(narrow), IncrementalLDA.from_state(state)
+    assert restored.lda_state.words.dtype == np.int32
+    scene = _paper_scenes(1, 5)[0]
+    first, second = restored.learn_scene(scene), reference.learn_scene(scene)
+    assert np.array_equal(first.assignments, second.assignments)
+    assert np.array_equal(first.context_posterior, second.context_posterior)
+    assert restored.lda_state.invariant_violations() == []
+
+
 def test_infer_scene_draws_what_a_fresh_generator_of_its_seed_draws() -> None:
     """The memoised random numbers (SeededUniforms) are a fresh default_rng(seed)'s, whichever
     scene length asked first."""

@@ -355,7 +355,7 @@ class IncrementalLDA:
         model = cls(saved.vocabulary, hyperparameters=hyperparameters)
         words = _state_array(saved.words, "state.words")
         assignments = _state_array(saved.assignments, "state.assignments")
-        offsets = _state_array(saved.doc_offsets, "state.doc_offsets")
+        offsets = _state_array(saved.doc_offsets, "state.doc_offsets").astype(np.int32, copy=False)  # diffs checked
         h = model.hyperparameters
         n_contexts = saved.n_contexts
         if isinstance(n_contexts, bool) or not (
@@ -499,14 +499,16 @@ def _validated_seed(seed: Any) -> int:
 
 
 def _state_array(values: Any, field_name: str) -> np.ndarray:
-    """``values`` as int32, without a copy when they are int32 already (a start at a million
-    scenes holds ~78 million tokens: each copy of one of their arrays is 312 MB), refusing values
-    that int32 cannot hold instead of letting the cast wrap them into range."""
+    """``values`` as an integer array that int32 holds, without a copy when its type is int32 or
+    narrower (a start at a million scenes holds ~78 million tokens: a copy of one of their arrays
+    is 312 MB; ``LDAState.from_arrays`` widens them as it copies them into the model's own).
+    Values of a wider type are refused when int32 cannot hold them, not wrapped into range."""
     array = np.asarray(values)
     if array.ndim != 1 or (array.size and not np.issubdtype(array.dtype, np.integer)):
         raise InvalidInputError(field_name, "must be a one-dimensional integer array")
-    if array.dtype.itemsize > 4 or array.dtype == np.uint32:
-        bounds = np.iinfo(np.int32)
-        if array.size and (array.min() < bounds.min or array.max() > bounds.max):
-            raise InvalidInputError(field_name, "holds values outside the 32-bit integer range")
-    return array.astype(np.int32, copy=False)
+    if np.can_cast(array.dtype, np.int32):
+        return array
+    bounds = np.iinfo(np.int32)
+    if array.size and (array.min() < bounds.min or array.max() > bounds.max):
+        raise InvalidInputError(field_name, "holds values outside the 32-bit integer range")
+    return array.astype(np.int32)

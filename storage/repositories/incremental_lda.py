@@ -55,9 +55,10 @@ class StoredCheckpoint:
     context_count: int
     word_count: int
     words: np.ndarray
-    """Concept id of every token, scenes in order (int32)."""
+    """Concept id of every token, scenes in order (integers: int32, or as :func:`load_checkpoint`
+    read them, the narrowest unsigned type that holds them)."""
     contexts: np.ndarray
-    """Context of every token at :attr:`version` (int32)."""
+    """Context of every token at :attr:`version` (integers, as :attr:`words`)."""
     doc_offsets: np.ndarray
     """Scene d owns tokens doc_offsets[d]:doc_offsets[d + 1] (int32)."""
 
@@ -477,8 +478,10 @@ def load_checkpoint(session: Session, model_id: str) -> StoredCheckpoint | None:
         version=int(row.version),
         context_count=int(row.context_count),
         word_count=int(row.word_count),
-        words=words.astype(np.int32),
-        contexts=contexts.astype(np.int32),
+        # As stored (uint8 for a vocabulary and K below 256): the model widens them as it copies them
+        # into its own arrays, one fresh 312 MB write an array at a million 78-token scenes, not two.
+        words=words,
+        contexts=contexts,
         doc_offsets=np.concatenate([[0], np.cumsum(lengths, dtype=np.int64)]).astype(np.int32),
     )
 

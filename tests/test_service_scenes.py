@@ -8,10 +8,12 @@ from decimal import Decimal
 from typing import Any
 
 import numpy as np
+import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, text
 
 from app.deps import model_write
+from app.errors import IdempotencyKeyReused
 from app.registry import ModelRuntime
 from app.schemas.scenes import ANSWER_DECIMALS, SceneCreate, SceneRead
 from app.services.perception import (
@@ -256,3 +258,30 @@ def test_feedback_prepared_before_the_write_is_used_only_while_memory_stands_whe
     assert [obj["in_context"] for obj in stale_answer["objects"]] != [
         obj.in_context for obj in stale.contextual.objects
     ]
+
+
+def test_a_keyed_scene_in_a_write_opened_without_its_key_looks_the_key_up_itself(client: TestClient) -> None:
+    """A write that learns several keyed scenes (bench_restart's build) is opened without a key, so
+    the lock's read did not look any up: ``learn_scene`` looks each one up itself, and a retry still
+    replays the stored answer, a reused key with another body still refused."""
+    state: AppState = client.app_state["contextweb"]
+    created = client.post("/v1/models", json={"name": "keys", "hyperparameters": FAST_HYPERPARAMETERS})
+    model = state.registry.get(created.json()["id"])
+    assert model is not None
+    first_body, other_body = (SceneCreate.model_validate(body) for body in concept_scenes(2, seed=9))
+
+    def learn(body: SceneCreate, key: str) -> tuple[str, bool]:
+        with model_write(state, model) as write:  # no idempotency_key: write.locked looked none up
+            assert write.locked.idempotency_key is None
+            prepared = prepare_scene(model, read_scene(model, body, key))
+            answer, replayed = learn_scene(write.session, model, write.version, prepared, key, write.locked)
+            write.version_saved = write.notified = not replayed
+            write.unchanged = replayed
+        return answer, replayed
+
+    answer, replayed = learn(first_body, "key-1")
+    assert not replayed
+    assert learn(first_body, "key-1") == (answer, True)
+    with pytest.raises(IdempotencyKeyReused):
+        learn(other_body, "key-1")
+    assert model.incremental_lda.n_scenes == 1

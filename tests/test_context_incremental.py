@@ -365,3 +365,15 @@ def test_the_likelihood_baseline_lives_in_the_experiments_and_is_not_restored_by
     model.check_invariants()
     with pytest.raises(InvalidInputError, match="experiments/baselines"):
         IncrementalLDA.from_state(model.to_state())
+
+
+def test_decreasing_narrow_scene_offsets_are_refused() -> None:
+    # uint8 offsets [0, 2, 1, 3]: their np.diff would wrap 2 -> 1 into 255 and pass as a valid step.
+    model = IncrementalLDA(seed=0, **ONLINE)
+    _learn_online(model, _paper_scenes(3, 0))
+    state = model.to_state()
+    lengths = np.diff(state.doc_offsets)
+    offsets = np.array([0, lengths[0] + lengths[1], lengths[0], state.words.shape[0]], dtype=np.uint8)
+    broken = ContextModelState(**{**state.__dict__, "doc_offsets": offsets})
+    with pytest.raises(InvalidInputError, match="document offsets"):
+        IncrementalLDA.from_state(broken)

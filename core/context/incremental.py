@@ -355,7 +355,7 @@ class IncrementalLDA:
         model = cls(saved.vocabulary, hyperparameters=hyperparameters)
         words = _state_array(saved.words, "state.words")
         assignments = _state_array(saved.assignments, "state.assignments")
-        offsets = _state_array(saved.doc_offsets, "state.doc_offsets").astype(np.int32, copy=False)  # diffs checked
+        offsets = _state_array(saved.doc_offsets, "state.doc_offsets")
         h = model.hyperparameters
         n_contexts = saved.n_contexts
         if isinstance(n_contexts, bool) or not (

@@ -140,7 +140,7 @@ def layout_problems(
         doc_offsets.size == 0
         or doc_offsets[0] != 0
         or doc_offsets[-1] != words.shape[0]
-        or np.any(np.diff(doc_offsets) < 1)
+        or np.any(doc_offsets[1:] <= doc_offsets[:-1])  # not np.diff: it wraps for unsigned types
     ):
         problems.append("document offsets must start at 0, end at the token count and give every scene a token")
     return problems

@@ -18,6 +18,7 @@ exit), and the scene route is the hot path.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from functools import partial
@@ -35,8 +36,10 @@ from app.errors import (
     Unauthorized,
     is_storage_busy,
     is_storage_failure,
+    is_write_conflict,
     storage_error,
     storage_failure_reason,
+    write_conflict,
 )
 from app.registry import ModelRuntime, ModelWrite
 from app.schemas.keys import Role
@@ -45,6 +48,7 @@ from storage.repositories.incremental_lda import LockHeldElsewhere
 from storage.unit_of_work import unit_of_work
 
 T = TypeVar("T")
+logger = logging.getLogger("contextweb")
 
 API_KEY_HEADER = "X-API-Key"
 _api_key = APIKeyHeader(
@@ -180,6 +184,12 @@ def model_write(
     writer's one undo marks the model unavailable and reloads it from one snapshot (at once if
     the database answers, else on a later request).
 
+    A write that collides with a row the database already holds (a unique key: a writer elsewhere
+    that ignored the model's lock, or rows restored under it) is a 503 ``model_unavailable`` too,
+    not a 500: nothing of it was stored, the undo has reloaded memory from the database, and the
+    client's retry meets the stored rows (a keyed scene then replays, or the reload names the
+    stored state's problem for ``contextweb models check``).
+
     Call it on a worker thread admitted by ``Admission.run_write`` (app/admission.py): then no other
     write of this process waits on ``model.lock``, only the reads that need it for a moment.
 
@@ -204,6 +214,9 @@ def model_write(
             state.storage.record_failure(storage_failure_reason(error))
         if failed:
             raise storage_error(error) from error
+        if is_write_conflict(error):
+            logger.warning("model %s: a write conflicts with a stored row and stored nothing: %s", model.id, error)
+            raise write_conflict(model.id, error) from error
         raise
 
 

@@ -7,7 +7,8 @@ Starlette's routing errors are rendered in the same shape. There is deliberately
 no catch-all: an unexpected exception stays a visible 500 and a logged traceback. Database
 failures are not unexpected in the field (a lost connection, a full disk, an I/O
 error, a lock timeout): each such failure (:func:`is_storage_failure`) that reaches a
-route is a 503 ``storage_unavailable`` with ``Retry-After``.
+route is a 503 ``storage_unavailable`` with ``Retry-After``, and a model write that one of the
+database's constraints refuses (:func:`is_write_conflict`) a 503 ``model_unavailable``.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.exc import (
     DBAPIError,
     DisconnectionError,
+    IntegrityError,
     InterfaceError,
     InternalError,
     OperationalError,
@@ -311,6 +313,18 @@ STORAGE_FAILURES: tuple[type[BaseException], ...] = (
 def is_storage_failure(exc: BaseException) -> bool:
     return isinstance(exc, STORAGE_FAILURES) or (
         isinstance(exc, DBAPIError) and bool(getattr(exc, "connection_invalidated", False))
+    )
+
+
+def is_write_conflict(exc: BaseException) -> bool:
+    """A write refused by one of the database's constraints (a unique key, a foreign key)."""
+    return isinstance(exc, IntegrityError)
+
+
+def write_conflict(model_id: str, exc: BaseException) -> ModelUnavailable:
+    """The 503 of a write that collided with stored rows (app/deps.py ``model_write``)."""
+    return ModelUnavailable(
+        model_id, f"the write conflicts with a stored row ({storage_failure_reason(exc)}); nothing was stored, retry"
     )
 
 

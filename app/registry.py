@@ -56,6 +56,13 @@ logger = logging.getLogger("contextweb")
 
 #: Seconds between two reload attempts of an unavailable model while the database fails.
 RELOAD_BACKOFF_SECONDS = 1.0
+#: A model whose stored state failed its check is loaded again as soon as its stored version moves
+#: (``contextweb models repair`` moves it), and otherwise after this many seconds, doubling after
+#: each check that fails again up to :data:`FAILED_CHECK_RECHECK_MAX_SECONDS`: rows mended by hand,
+#: which leave the version where it was, are then found without a restart, while a model that stays
+#: broken costs one load per hour at most (a load of a million scenes takes seconds).
+FAILED_CHECK_RECHECK_SECONDS = 30.0
+FAILED_CHECK_RECHECK_MAX_SECONDS = 3600.0
 
 
 @dataclass(frozen=True)
@@ -151,7 +158,14 @@ class ModelWriter:
         self.reload_after = 0.0
         """``time.monotonic()`` before which no reload is tried (a database that fails is not hammered)."""
         self.failed_version = failed_version
-        """The stored version whose state failed its check: reloaded again only once that version moves."""
+        """The stored version whose state failed its check: reloaded again once that version moves, or
+        at the same version after :attr:`recheck_after`."""
+        self.failed_checks = 0
+        """How many checks in a row failed at :attr:`failed_version` (the recheck's backoff doubles)."""
+        self.recheck_after = 0.0
+        """``time.monotonic()`` before which a failed check is not repeated at :attr:`failed_version`."""
+        if failed_version is not None:
+            self._failed_check(failed_version)
         self._changed = False
         """True while memory holds changes the database may not (from the change to the commit)."""
         self._on_commit: list[Callable[[], None]] = []
@@ -311,12 +325,26 @@ class ModelWriter:
         self.version = fresh.version
         self.unavailable = None
         self.failed_version = None
+        self.failed_checks = 0
         self.publish_summary()
 
     def mark_unavailable(self, reason: str, *, failed_version: int | None = None) -> None:
         self.unavailable = reason
+        if failed_version is not None:
+            self._failed_check(failed_version)
         self.failed_version = failed_version
         self.reload_after = time.monotonic() + RELOAD_BACKOFF_SECONDS
+
+    def _failed_check(self, version: int) -> None:
+        """The stored state at ``version`` failed its check: when to check it again at that version."""
+        self.failed_checks = self.failed_checks + 1 if version == self.failed_version else 1
+        self.failed_version = version
+        backoff = FAILED_CHECK_RECHECK_SECONDS * 2.0 ** min(self.failed_checks - 1, 20)
+        self.recheck_after = time.monotonic() + min(backoff, FAILED_CHECK_RECHECK_MAX_SECONDS)
+
+    def check_due(self, version: int) -> bool:
+        """Whether the stored state at ``version`` is to be loaded (and so checked) now."""
+        return self.failed_version is None or version != self.failed_version or time.monotonic() >= self.recheck_after
 
     def forget(self) -> None:
         """The model was deleted (here or by another process)."""
@@ -721,10 +749,10 @@ class ModelRegistry:
             with self._snapshot() as session:
                 version = lda_repository.stored_version(session, model.id)
                 row = None if version is None else model_repository.get_model(session, model.id)
-                if row is None:
+                if row is None or version is None:
                     self.forget(model)
                     raise ModelNotFound(model.id)
-                if model.failed_version is not None and version == model.failed_version:
+                if not model.check_due(version):
                     raise ModelUnavailable(model.id, model.unavailable or "stored state inconsistent")
                 try:
                     fresh = load_runtime(session, row)

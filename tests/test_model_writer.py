@@ -8,10 +8,13 @@ equal to the database, as a fresh load from it shows array by array.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from app import registry
 from app.registry import FittedPerception, ModelRuntime, load_runtime
 from app.services.perception import Perception
 from app.state import AppState
@@ -83,3 +86,26 @@ def test_changes_that_wait_for_the_commit_are_dropped_with_it(client: TestClient
         model.writer.install_fit(replacement)
         assert model.fitted is fitted, "a fit takes effect when its write commits"
     assert model.fitted is replacement and model.perception is replacement.perception
+
+
+def test_a_failed_check_is_repeated_when_the_version_moves_or_after_a_doubling_backoff(
+    client: TestClient, model_id: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A model whose stored state failed its check is loaded again at once when its stored version
+    moves, and at the same version only after the recheck backoff, which doubles up to its cap."""
+    _, model = _state_and_model(client, model_id)
+    writer = model.writer
+    monkeypatch.setattr(registry, "FAILED_CHECK_RECHECK_SECONDS", 0.05)
+    monkeypatch.setattr(registry, "FAILED_CHECK_RECHECK_MAX_SECONDS", 0.15)
+    waits = []
+    for _ in range(4):
+        marked = time.monotonic()
+        writer.mark_unavailable("its stored state failed its check", failed_version=7)
+        assert not writer.check_due(7) and writer.check_due(8)
+        waits.append(writer.recheck_after - marked)
+        time.sleep(max(0.0, writer.recheck_after - time.monotonic()) + 0.005)
+        assert writer.check_due(7)
+    assert waits == pytest.approx([0.05, 0.1, 0.15, 0.15], abs=0.01)
+    marked = time.monotonic()
+    writer.mark_unavailable("its stored state failed its check", failed_version=8)  # another version: from the start
+    assert writer.recheck_after - marked == pytest.approx(0.05, abs=0.01)

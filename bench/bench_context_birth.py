@@ -15,8 +15,10 @@ is found (0: with that very scene; ``None``: not by the end), found meaning that
 of its scenes learned so far have their largest θ in a context opened since it
 appeared, and false births: the largest excess of K over the contexts seen so far, at
 any scene. Besides, false births and growth checks on steady streams (every context
-from the start, 400 scenes: paper, generic-3, -4 and -5). Seeds 0-9 (the tests use others). Writes
-``bench/results/context_birth.json``.
+from the start, 400 scenes: paper, generic-3, -4 and -5). Seeds 0-9 (the tests use others);
+``--seeds 1000-1059`` runs on others, to check that a figure holds beyond the seeds it was
+first measured on. Writes ``bench/results/context_birth.json`` (with ``--seeds``,
+``context_birth_seeds_START_STOP.json``).
 """
 
 from __future__ import annotations
@@ -156,24 +158,37 @@ def summary(runs: list[BirthRun]) -> dict[str, float | int]:
     }
 
 
+def seed_range(text: str) -> tuple[int, ...]:
+    """``START-STOP`` (both included, START <= STOP, non-negative) as the seeds in between."""
+    start, separator, stop = text.partition("-")
+    if not (separator and start.isdigit() and stop.isdigit() and int(start) <= int(stop)):
+        raise argparse.ArgumentTypeError(f"expected START-STOP with 0 <= START <= STOP, got {text!r}")
+    return tuple(range(int(start), int(stop) + 1))
+
+
 def main() -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="5 seeds instead of 10")
+    parser.add_argument("--seeds", type=seed_range, default=None, help="START-STOP, both included (default 0-9)")
     args = parser.parse_args(sys.argv[1:])
-    seeds = SEEDS[:5] if args.quick else SEEDS
+    seeds = args.seeds if args.seeds is not None else SEEDS
+    seeds = seeds[:5] if args.quick else seeds
     runs = {scenario: [birth_run(scenario, seed) for seed in seeds] for scenario in SCENARIOS}
     steady = {
         scenario: [steady_run(scenario, seed) for seed in seeds]
         for scenario in ("paper", "generic-3", "generic-4", "generic-5")
     }
     result: dict[str, Any] = {
+        "seeds": [seeds[0], seeds[-1]],
         "by_scenario": {scenario: summary(rows) for scenario, rows in runs.items()},
         "steady": steady,
         "all": summary([run for rows in runs.values() for run in rows]),
         "runs": [asdict(run) for rows in runs.values() for run in rows],
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "context_birth.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    # Other seeds than the default are a check of the default run's figures, kept beside them.
+    name = "context_birth" if args.seeds is None else f"context_birth_seeds_{seeds[0]}_{seeds[-1]}"
+    (RESULTS / f"{name}.json").write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
     for name, row in [*result["by_scenario"].items(), ("all", result["all"])]:
         print(
             f"{name:>10}: delay median {row['median_delay']}, max {row['max_delay']} (its own scenes: median "

@@ -7,12 +7,11 @@ idles (bench_scaling, 8 clients on 8 models, ``--workers 2``, PostgreSQL, one sc
 384.6, 392.2 and 380.7 scenes/s, 3/5 317.5 and 323.4; with 4 scene threads 1/7 247.3).
 
 So each worker counts its open connections in a small file that every worker of one server maps
-(:class:`ConnectionCounts`, one slot per worker, named after the supervising process). A worker
-that accepts a connection while it holds more than its share (⌈open connections / workers⌉) answers
-one of its connections, drawn at random, with ``Connection: close`` after its next request: each
-request a worker over its share answers closes its connection with probability 1 / (the worker's
-connections). The client opens a new connection (every HTTP client does so by itself, as it does
-after a keep-alive time-out), which any worker may accept. Each such round moves the spread towards
+(:class:`ConnectionCounts`, one slot per worker, named after the supervising process). While a
+worker holds more than its share (⌈open connections / workers⌉), each request it answers closes its
+connection (``Connection: close``) with probability 1 / (the worker's connections), so one of its
+connections, drawn at random, goes. The client opens a new connection (every HTTP client does so by
+itself, as it does after a keep-alive time-out), which any worker may accept. Each such round moves the spread towards
 even; a worker within its share closes nothing.
 
 Why at random, not the connection just accepted: the kernel hands a new connection to the worker
@@ -21,8 +20,10 @@ a request. A client reconnecting right after another client's request to the bus
 there again: closing always the newly accepted connection then bounced one client on the busier
 worker for good, a close every round (seen in ``tests/test_worker_connections.py`` beside two
 busy processes, 1 run in 5). A connection drawn at random reconnects after requests of other
-clients, so the busier worker is not always the awake one. Nothing is shared but counts, and a stale or torn count costs at most one extra reconnection
-or one missed one: the slots are plain memory, written by their worker only, read by the others.
+clients, so the busier worker is not always the awake one.
+
+Nothing is shared but counts, and a stale or torn count costs at most one extra reconnection or one
+missed one: the slots are plain memory, written by their worker only, read by the others.
 
 With one worker, uvicorn's own protocol runs unchanged (``serve`` passes this one only with N > 1).
 """

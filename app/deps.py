@@ -215,7 +215,11 @@ def model_write(
         if failed:
             raise storage_error(error) from error
         if is_write_conflict(error):
-            logger.warning("model %s: a write conflicts with a stored row and stored nothing: %s", model.id, error)
+            logger.warning(
+                "model %s: a write conflicts with a stored row and stored nothing: %s",
+                model.id,
+                storage_failure_reason(error),
+            )
             raise write_conflict(model.id, error) from error
         raise
 

@@ -157,14 +157,14 @@ class ModelWriter:
         """Why the model does not serve (its memory is not proven equal to the database), or None."""
         self.reload_after = 0.0
         """``time.monotonic()`` before which no reload is tried (a database that fails is not hammered)."""
-        self.failed_version = failed_version
+        self.failed_version: int | None = None
         """The stored version whose state failed its check: reloaded again once that version moves, or
         at the same version after :attr:`recheck_after`."""
         self.failed_checks = 0
         """How many checks in a row failed at :attr:`failed_version` (the recheck's backoff doubles)."""
         self.recheck_after = 0.0
         """``time.monotonic()`` before which a failed check is not repeated at :attr:`failed_version`."""
-        if failed_version is not None:
+        if failed_version is not None:  # a model registered unloadable at start-up
             self._failed_check(failed_version)
         self._changed = False
         """True while memory holds changes the database may not (from the change to the commit)."""

@@ -7,23 +7,13 @@ idles (bench_scaling, 8 clients on 8 models, ``--workers 2``, PostgreSQL, one sc
 384.6, 392.2 and 380.7 scenes/s, 3/5 317.5 and 323.4; with 4 scene threads 1/7 247.3).
 
 So each worker counts its open connections in a small file that every worker of one server maps
-(:class:`ConnectionCounts`, one slot per worker, named after the supervising process). While a
-worker holds more than its share (⌈open connections / workers⌉), each request it answers closes its
-connection (``Connection: close``) with probability 1 / (the worker's connections), so one of its
-connections, drawn at random, goes. The client opens a new connection (every HTTP client does so by
-itself, as it does after a keep-alive time-out), which any worker may accept. Each such round moves the spread towards
-even; a worker within its share closes nothing.
-
-Why at random, not the connection just accepted: the kernel hands a new connection to the worker
-that reaches ``accept`` first, and that is the worker that is awake, the one that has just answered
-a request. A client reconnecting right after another client's request to the busier worker lands
-there again: closing always the newly accepted connection then bounced one client on the busier
-worker for good, a close every round (seen in ``tests/test_worker_connections.py`` beside two
-busy processes, 1 run in 5). A connection drawn at random reconnects after requests of other
-clients, so the busier worker is not always the awake one.
-
-Nothing is shared but counts, and a stale or torn count costs at most one extra reconnection or one
-missed one: the slots are plain memory, written by their worker only, read by the others.
+(:class:`ConnectionCounts`, one slot per worker, named after the supervising process). A worker
+that accepts a connection while it holds more than its share (⌈open connections / workers⌉) answers
+that connection's first request with ``Connection: close``: the client opens a new connection (every
+HTTP client does so by itself, as it does after a keep-alive time-out), which any worker may accept.
+Each such round moves the spread towards even; a connection within its worker's share is never
+closed. Nothing is shared but counts, and a stale or torn count costs at most one extra reconnection
+or one missed one: the slots are plain memory, written by their worker only, read by the others.
 
 With one worker, uvicorn's own protocol runs unchanged (``serve`` passes this one only with N > 1).
 """
@@ -35,7 +25,6 @@ import fcntl
 import math
 import mmap
 import os
-import random
 import struct
 import tempfile
 from pathlib import Path
@@ -86,10 +75,6 @@ class ConnectionCounts:
         """Count a new connection; True if this worker now holds more than its share of them."""
         self.open += 1
         self._write()
-        return self.over_share()
-
-    def over_share(self) -> bool:
-        """Whether this worker holds more than its share, ⌈open connections / workers⌉, of them."""
         total = workers = 0
         for slot in range(self._workers):
             owner, count = _SLOT.unpack_from(self._memory, slot * _SLOT.size)
@@ -131,15 +116,13 @@ def _worker_counts() -> ConnectionCounts | None:
 
 class BalancedHttpToolsProtocol(HttpToolsProtocol):
     """uvicorn's httptools protocol, counting this worker's connections (:class:`ConnectionCounts`)
-    and, while the worker holds more than its share, closing its connection after a request with
-    probability 1 / (the worker's connections) (module docstring)."""
+    and closing one accepted beyond the worker's share after its first response."""
 
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
         counts = _worker_counts()
         self._counted = counts is not None
-        if counts is not None:
-            counts.opened()
+        self._over_share = counts.opened() if counts is not None else False
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._uncount()
@@ -147,8 +130,8 @@ class BalancedHttpToolsProtocol(HttpToolsProtocol):
 
     def on_headers_complete(self) -> None:
         super().on_headers_complete()
-        counts = _counts if self._counted and self.cycle is not None else None
-        if counts is not None and counts.over_share() and _draw.random() * counts.open < 1.0:
+        if self._over_share and self.cycle is not None:
+            self._over_share = False
             self.cycle.keep_alive = False  # the response says "connection: close", then the transport closes
             self._uncount()  # no longer this worker's: the client's next connection is counted instead
 
@@ -156,8 +139,3 @@ class BalancedHttpToolsProtocol(HttpToolsProtocol):
         if self._counted and _counts is not None:
             _counts.closed()
             self._counted = False
-
-
-_draw = random.Random()
-"""Which connection of a worker over its share closes: a draw per request, not reproducible on purpose
-(it only decides which client reconnects; seeding it alike in every worker would add nothing)."""

@@ -1,21 +1,29 @@
 """An even spread of keep-alive connections over ``contextweb serve --workers N`` (docs/scaling.md).
 
-uvicorn's workers share one listening socket, and the kernel gives each new connection to whichever
-worker accepts it first. A fleet's robots keep their connections open for hours, so a chance spread
-of 2/6 or 1/7 lasts, and the busier worker's one scene thread then bounds the fleet while the other
-idles (bench_scaling, 8 clients on 8 models, ``--workers 2``, PostgreSQL, one scene thread: 4/4
-384.6, 392.2 and 380.7 scenes/s, 3/5 317.5 and 323.4; with 4 scene threads 1/7 247.3).
+Each worker listens on its own socket, bound to the server's port with ``SO_REUSEPORT``
+(:class:`WorkerListener`): the kernel gives a new connection to one of the workers' sockets by a hash
+of the connection's addresses, so which worker gets it does not depend on which one is awake. (With
+uvicorn's one shared socket, the worker that reached ``accept`` first took it: under CPU contention
+the worker awake after the request just before, so a client bounced off a busy worker could land on
+it again and again: a fresh clone's ``make test`` failed ``test_worker_connections`` so, a close in
+each of 40 rounds.)
 
-So each worker counts its open connections in a small file that every worker of one server maps
+A fleet's robots keep their connections open for hours, so a chance spread of 2/6 or 1/7 lasts, and
+the busier worker's one scene thread then bounds the fleet while the other idles (bench_scaling, 8
+clients on 8 models, ``--workers 2``, PostgreSQL, one scene thread: 4/4 384.6, 392.2 and 380.7
+scenes/s, 3/5 317.5 and 323.4; with 4 scene threads 1/7 247.3).
+
+So each worker also counts its open connections in a small file that every worker of one server maps
 (:class:`ConnectionCounts`, one slot per worker, named after the supervising process). A worker
 that accepts a connection while it holds more than its share (⌈open connections / workers⌉) answers
 that connection's first request with ``Connection: close``: the client opens a new connection (every
-HTTP client does so by itself, as it does after a keep-alive time-out), which any worker may accept.
-Each such round moves the spread towards even; a connection within its worker's share is never
-closed. Nothing is shared but counts, and a stale or torn count costs at most one extra reconnection
-or one missed one: the slots are plain memory, written by their worker only, read by the others.
+HTTP client does so by itself, as it does after a keep-alive time-out), which lands on a worker drawn
+by its new source port's hash. Each such round moves the spread towards even; a connection within
+its worker's share is never closed. Nothing is shared but counts, and a stale or torn count costs at
+most one extra reconnection or one missed one: the slots are plain memory, written by their worker
+only, read by the others.
 
-With one worker, uvicorn's own protocol runs unchanged (``serve`` passes this one only with N > 1).
+With one worker, uvicorn's own socket and protocol run unchanged (``serve`` uses these only with N > 1).
 """
 
 from __future__ import annotations
@@ -25,11 +33,15 @@ import fcntl
 import math
 import mmap
 import os
+import socket
 import struct
 import tempfile
 from pathlib import Path
+from typing import Any, TypeVar
 
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
+
+SocketT = TypeVar("SocketT", bound=socket.socket)
 
 _SLOT = struct.Struct("=qq")
 """A worker's slot: its process id (0: free) and its open connections."""
@@ -141,3 +153,50 @@ class BalancedHttpToolsProtocol(HttpToolsProtocol):
         if self._counted and _counts is not None:
             _counts.closed()
             self._counted = False
+
+
+class WorkerListener(socket.socket):
+    """The server's listening address, bound with ``SO_REUSEPORT``, that becomes a socket of its own
+    in each worker it is passed to.
+
+    uvicorn's supervisor passes its sockets to every worker it spawns, by pickling. This one pickles as
+    its address, and unpickles, in the worker, as a new socket bound to that address with
+    ``SO_REUSEPORT``: so each worker, first or restarted, listens on its own socket of the port's group,
+    and the kernel spreads new connections over them by their addresses' hash. The supervisor's socket
+    holds the port (bound, never listening, so the kernel gives it no connection) and makes a port in
+    use fail at start-up, before any worker starts.
+
+    What this trades (docs/scaling.md): connections waiting in a worker's own queue when that worker
+    dies are reset, where a shared queue would have kept them for the other workers; and a new
+    connection hashed to a busy worker waits for it, where the idle worker would have taken it.
+    """
+
+    @classmethod
+    def bind_to(cls, host: str, port: int) -> WorkerListener:
+        """Bound to ``host:port`` (port 0: one the kernel picks, which every worker then shares).
+
+        A plain socket is bound there first and closed: ``SO_REUSEPORT`` would let a second server
+        (of the same user) join this one's port and take half its connections, where a plain bind
+        fails while any socket holds the port (``OSError``, ``EADDRINUSE``)."""
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        with socket.socket(family, socket.SOCK_STREAM, socket.IPPROTO_TCP) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            probe.bind((host, port))
+            address = probe.getsockname()
+        return _bound(cls, family, address)
+
+    def __reduce__(self) -> tuple[Any, tuple[Any, ...]]:
+        return _bound, (socket.socket, self.family, self.getsockname())
+
+
+def _bound(kind: type[SocketT], family: int, address: tuple[Any, ...]) -> SocketT:
+    """A TCP socket of ``kind`` bound to ``address`` in its port's ``SO_REUSEPORT`` group."""
+    bound = kind(family, socket.SOCK_STREAM, socket.IPPROTO_TCP)
+    try:
+        bound.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        bound.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+        bound.bind(address)
+    except OSError:
+        bound.close()
+        raise
+    return bound

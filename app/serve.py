@@ -11,12 +11,11 @@ import argparse
 import logging
 import os
 import sys
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from sqlalchemy.exc import OperationalError
 
-from app.connections import create_counts
+from app.connections import WorkerListener, create_counts
 from app.logs import log_config
 from app.settings import LOOPBACK_HOSTS, Settings
 from storage.database import create_database_engine
@@ -101,6 +100,7 @@ def serving_app(settings: Settings | None = None) -> FastAPI:
 def run_serve(args: argparse.Namespace) -> int:
     """Check the database, then serve on uvicorn; without API keys, only on loopback (and say so)."""
     import uvicorn
+    from uvicorn.supervisors import Multiprocess
 
     overrides: dict[str, Any] = {name: value for name in ("host", "port") if (value := getattr(args, name)) is not None}
     settings = Settings(**overrides)
@@ -117,29 +117,37 @@ def run_serve(args: argparse.Namespace) -> int:
         raise SystemExit("contextweb serve: --workers must be at least 1")
     if (status := _check_database(settings)) is not None:
         return status
-    counts: Path | None = None
+    options: dict[str, Any] = {
+        "host": host,
+        "port": settings.port,
+        "log_level": args.log_level,
+        "log_config": log_config(),
+        "access_log": False,
+        "ws": "app.websocket_protocol:ResettableWebSocketProtocol",  # slow stream clients can be dropped (docs/stream.md)
+    }
     if args.workers == 1:
-        target: Any = serving_app(settings)
-    else:
-        # Each worker builds its own app from the environment (uvicorn imports the factory by name).
-        os.environ.update({f"CONTEXTWEB_{name.upper()}": str(value) for name, value in overrides.items()})
-        target = "app.serve:serving_app"
-        counts = create_counts(os.getpid(), args.workers)  # the workers even out their connections
+        uvicorn.run(serving_app(settings), **options)
+        return 0
+    # Each worker builds its own app from the environment (uvicorn imports the factory by name).
+    os.environ.update({f"CONTEXTWEB_{name.upper()}": str(value) for name, value in overrides.items()})
+    config = uvicorn.Config(
+        "app.serve:serving_app",
+        factory=True,
+        workers=args.workers,
+        # Each worker on its own socket of the port, its keep-alive connections evened out (app/connections.py).
+        http="app.connections:BalancedHttpToolsProtocol",
+        **options,
+    )
     try:
-        uvicorn.run(
-            target,
-            factory=args.workers > 1,
-            workers=args.workers,
-            host=host,
-            port=settings.port,
-            log_level=args.log_level,
-            log_config=log_config(),
-            access_log=False,
-            # With several workers, their keep-alive connections evened out (app/connections.py).
-            http="app.connections:BalancedHttpToolsProtocol" if counts is not None else "auto",
-            ws="app.websocket_protocol:ResettableWebSocketProtocol",  # slow stream clients can be dropped (docs/stream.md)
-        )
+        listener = WorkerListener.bind_to(host, settings.port)
+    except OSError as error:
+        print(f"contextweb serve: cannot listen on {host}:{settings.port}: {error.strerror}", file=sys.stderr)
+        return 1
+    counts = create_counts(os.getpid(), args.workers)
+    try:
+        logger.info("serving on http://%s:%d with %d workers", host, listener.getsockname()[1], args.workers)
+        Multiprocess(config, sockets=[listener]).run()
     finally:
-        if counts is not None:
-            counts.unlink(missing_ok=True)
+        counts.unlink(missing_ok=True)
+        listener.close()
     return 0

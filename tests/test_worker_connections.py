@@ -9,6 +9,10 @@ a round of requests in which no worker asked for a new connection.
 
 from __future__ import annotations
 
+import os
+import re
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -18,7 +22,7 @@ import pytest
 from app.connections import ConnectionCounts, create_counts
 from bench.bench_scaling import socket_owners
 from tests.conftest import migrated_database
-from tests.servers import running_server
+from tests.servers import running_server, server_environment
 
 CLIENTS = 8
 MAX_ROUNDS = 40
@@ -28,6 +32,55 @@ MAX_ROUNDS = 40
 def _worker_pids(supervisor: int) -> list[int]:
     children = Path(f"/proc/{supervisor}/task/{supervisor}/children").read_text().split()
     return [int(pid) for pid in children]
+
+
+def _listening_sockets(port: int, pids: list[int]) -> dict[int, int]:
+    """How many sockets listening on ``port`` each process holds (from /proc)."""
+    inodes = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        for row in Path(table).read_text().splitlines()[1:]:
+            fields = row.split()
+            if int(fields[1].rsplit(":", 1)[1], 16) == port and fields[3] == "0A":  # TCP_LISTEN
+                inodes.add(f"socket:[{fields[9]}]")
+    held = {}
+    for pid in pids:
+        links = []
+        for fd in os.listdir(f"/proc/{pid}/fd"):
+            try:
+                links.append(os.readlink(f"/proc/{pid}/fd/{fd}"))
+            except OSError:  # closed meanwhile
+                continue
+        held[pid] = sum(link in inodes for link in links)
+    return held
+
+
+def test_each_worker_listens_on_its_own_socket_and_the_port_stays_one_servers(
+    request: pytest.FixtureRequest, tmp_path: Path
+) -> None:
+    """Two listening sockets, one in each worker and none in the supervisor, so the kernel's choice
+    between them does not depend on which worker is awake; and a second server cannot join the port
+    (``SO_REUSEPORT`` would let it) but says why it stopped."""
+    url = migrated_database("sqlite", request, tmp_path)
+    with running_server(url, tmp_path, args=["--workers", "2"], log_level="info") as server:
+        deadline = time.monotonic() + 60
+        while len(workers := re.findall(r"Started server process \[(\d+)\]", server.log(1_000_000))) < 2:
+            assert time.monotonic() < deadline, server.log(4000)
+            time.sleep(0.2)
+        children = _worker_pids(server.pid)  # the workers and multiprocessing's resource tracker
+        assert {int(pid) for pid in workers} <= set(children)
+        listening = _listening_sockets(server.port, [server.pid, *children])
+        assert listening == {server.pid: 0} | {pid: int(str(pid) in workers) for pid in children}, listening
+        second = subprocess.run(
+            [sys.executable, "-m", "app.cli", "serve", "--workers", "2"],
+            env=server_environment(url, server.port, None),
+            capture_output=True,
+            text=True,
+            timeout=120,
+            check=False,
+        )
+        assert second.returncode == 1, second.stderr[-2000:]
+        assert f"cannot listen on 127.0.0.1:{server.port}: Address already in use" in second.stderr
+        assert server.process.poll() is None
 
 
 def test_two_workers_end_with_four_connections_each(request: pytest.FixtureRequest, tmp_path: Path) -> None:

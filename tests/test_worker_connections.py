@@ -68,8 +68,11 @@ def test_each_worker_listens_on_its_own_socket_and_the_port_stays_one_servers(
             time.sleep(0.2)
         children = _worker_pids(server.pid)  # the workers and multiprocessing's resource tracker
         assert {int(pid) for pid in workers} <= set(children)
-        listening = _listening_sockets(server.port, [server.pid, *children])
-        assert listening == {server.pid: 0} | {pid: int(str(pid) in workers) for pid in children}, listening
+        expected = {server.pid: 0} | {pid: int(str(pid) in workers) for pid in children}
+        # A worker logs "Started server process" before its startup calls listen(), so poll.
+        while (listening := _listening_sockets(server.port, [server.pid, *children])) != expected:
+            assert time.monotonic() < deadline, listening
+            time.sleep(0.2)
         second = subprocess.run(
             [sys.executable, "-m", "app.cli", "serve", "--workers", "2"],
             env=server_environment(url, server.port, None),

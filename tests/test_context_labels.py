@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Callable
+from functools import partial
+
+import httpx
 import numpy as np
 from fastapi.testclient import TestClient
 
@@ -87,3 +92,74 @@ def test_scene_answers_the_stream_and_inference_carry_the_map_contexts_label(cli
     client.patch(f"/v1/models/{model_id}/contexts/{first['map_context']}", json={"label": "galley"})
     assert client.get(f"/v1/models/{model_id}/scenes/{answer['scene_id']}").json()["map_context_label"] == "kitchen"
     assert client.post(f"/v1/models/{model_id}/infer", json=scene).json()["map_context_label"] == "galley"
+
+
+def _at_once(calls: list[Callable[[], httpx.Response]]) -> list[httpx.Response]:
+    """The calls on threads of their own, released together; their responses in order."""
+    start = threading.Barrier(len(calls))
+    responses: list[httpx.Response | None] = [None] * len(calls)
+
+    def run(index: int) -> None:
+        start.wait()
+        responses[index] = calls[index]()
+
+    threads = [threading.Thread(target=run, args=(index,)) for index in range(len(calls))]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert all(response is not None for response in responses)
+    return [response for response in responses if response is not None]
+
+
+def test_labels_written_at_once_from_two_processes_all_succeed(database_url: str) -> None:
+    """Two processes, two threads each, name one unlabelled context at the same moment, 25 times:
+    each PATCH is a 200 (before, two that both found no row both inserted it, and one was a 500),
+    and the label stored is one of those sent."""
+    rng = np.random.default_rng(5)
+    with (  # a server error is a 500 here, as a robot would get it, not an exception in the thread
+        TestClient(create_app(make_settings(database_url)), raise_server_exceptions=False) as first,
+        TestClient(create_app(make_settings(database_url)), raise_server_exceptions=False) as second,
+    ):
+        model_id = first.post("/v1/models", json={"name": "t", "hyperparameters": FAST_HYPERPARAMETERS}).json()["id"]
+        assert first.post(f"/v1/models/{model_id}/scenes", json=_room_scene("kitchen", rng)).status_code == 201
+        url = f"/v1/models/{model_id}/contexts/0"
+        failed = []
+        for round_ in range(25):
+            assert first.patch(url, json={"label": None}).status_code == 200
+            sent = [f"room {round_}.{index}" for index in range(4)]
+            clients = [first, first, second, second]
+            responses = _at_once(
+                [partial(client.patch, url, json={"label": label}) for client, label in zip(clients, sent)]
+            )
+            failed += [
+                (response.status_code, response.text[:200]) for response in responses if response.status_code != 200
+            ]
+            assert _labels(second, model_id)[0] in sent
+        assert failed == []
+
+
+def test_a_label_written_while_another_process_deletes_the_model_is_a_200_or_a_404(database_url: str) -> None:
+    """The label's row refers to its model's: a label that loses the race with the model's deletion
+    on another process is a 404 (or a 200 before it), never a server error (a 500 before: the
+    label was not a write of its model, and its insert met the deleted model)."""
+    rng = np.random.default_rng(6)
+    with (
+        TestClient(create_app(make_settings(database_url)), raise_server_exceptions=False) as first,
+        TestClient(create_app(make_settings(database_url)), raise_server_exceptions=False) as second,
+    ):
+        unexpected = []
+        for round_ in range(20):
+            created = first.post("/v1/models", json={"name": "t", "hyperparameters": FAST_HYPERPARAMETERS})
+            model_id = created.json()["id"]
+            assert first.post(f"/v1/models/{model_id}/scenes", json=_room_scene("kitchen", rng)).status_code == 201
+            assert second.get(f"/v1/models/{model_id}").status_code == 200  # loaded there
+            label, deleted = _at_once(
+                [
+                    partial(second.patch, f"/v1/models/{model_id}/contexts/0", json={"label": f"room {round_}"}),
+                    partial(first.delete, f"/v1/models/{model_id}"),
+                ]
+            )
+            if label.status_code not in (200, 404) or deleted.status_code != 204:
+                unexpected.append((label.status_code, label.text[:200], deleted.status_code, deleted.text[:200]))
+        assert unexpected == []

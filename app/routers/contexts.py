@@ -6,8 +6,28 @@ from typing import Annotated
 
 from fastapi import APIRouter, Path, Query
 
-from app.deps import ModelDep, ReadAccess, ReadSessionDep, WriteAccess, WriteSessionDep
-from app.errors import ContextNotFound, Forbidden, InvalidInput, ModelNotFound, Unauthorized, error_responses
+from app.deps import (
+    AdmissionDep,
+    ModelDep,
+    ReadAccess,
+    ReadSessionDep,
+    StateDep,
+    WriteAccess,
+    WriteModelDep,
+    WriteRate,
+    write_model,
+)
+from app.errors import (
+    ContextNotFound,
+    Forbidden,
+    InvalidInput,
+    ModelBusy,
+    ModelNotFound,
+    RateLimited,
+    StorageBusy,
+    Unauthorized,
+    error_responses,
+)
 from app.schemas.contexts import ContextLabelRead, ContextLabelUpdate, ContextsRead
 from app.services import contexts as context_service
 from core.context.metrics import RELEVANCE_WEIGHT
@@ -41,13 +61,24 @@ def list_contexts(
 @router.patch(
     "/contexts/{context}",
     summary="Name a context (the label stays on it as K grows)",
-    dependencies=[WriteAccess],
-    responses=error_responses(ModelNotFound, ContextNotFound, InvalidInput, Unauthorized, Forbidden),
+    dependencies=[WriteAccess, WriteRate],
+    responses=error_responses(
+        ModelNotFound, ContextNotFound, InvalidInput, Unauthorized, Forbidden, ModelBusy, RateLimited, StorageBusy
+    ),
 )
-def label_context(
+async def label_context(
     body: ContextLabelUpdate,
-    model: ModelDep,
-    session: WriteSessionDep,
+    model: WriteModelDep,
+    state: StateDep,
+    admission: AdmissionDep,
     context: Annotated[int, Path(ge=0, le=10_000, description="The context's index.")],
 ) -> ContextLabelRead:
-    return context_service.label_context(session, model, context, body.label)
+    """A write of the model like any other (its lock, its version): K is current when the context is
+    checked, and a label cannot race the model's deletion on another process into a server error."""
+    return await admission.run_write(
+        model.id,
+        write_model,
+        state,
+        model,
+        lambda session: context_service.label_context(session, model, context, body.label),
+    )

@@ -38,4 +38,13 @@ def set_context_label(session: Session, model_id: str, context: int, label: str 
     if label is None:
         session.execute(delete(ContextLabel).where(ContextLabel.model_id == model_id, ContextLabel.context == context))
         return
-    session.merge(ContextLabel(model_id=model_id, context=context, label=label, updated_at=utc_now()))
+    # One statement, not a read then an insert (which two writers could both find empty).
+    driver = DriverStatements(session)
+    updated_at = driver.bind(ContextLabel.__table__.c.updated_at)(utc_now())
+    driver.execute(_UPSERT_LABEL, (model_id, context, label, updated_at))
+
+
+_UPSERT_LABEL = (
+    "INSERT INTO context_label (model_id, context, label, updated_at) VALUES (?, ?, ?, ?) "
+    "ON CONFLICT (model_id, context) DO UPDATE SET label = excluded.label, updated_at = excluded.updated_at"
+)

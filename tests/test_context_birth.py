@@ -34,15 +34,25 @@ def test_late_contexts_rarely_open_a_context_that_is_not_there(late_runs: list) 
     assert sum(e > 0 for e in excess) <= len(late_runs) // 10 and max(excess) <= 1, excess
 
 
+STEADY_SEEDS = range(100, 130)
+"""Streams per scenario: a rate, not a few seeds' exact K. On seeds 1000-1059, 2000-2059 and
+3000-3059 (nothing tuned on them) the paper world ended at its K in 179 of 180 streams with 1 false
+birth, and generic-5 in 53, 56 and 53 of 60 with 1 false birth each; a generic room is sometimes read
+as one context too few (docs/context.md). The bounds below fail a seed set with probability under
+1 % at an exact-K rate of 90 % (binomial), and under 4 % at a false-birth rate of 4 %."""
+
+
 @pytest.mark.parametrize("scenario", ["paper", "generic-5"])
 def test_steady_streams_keep_k_and_check_growth_rarely(scenario: str) -> None:
-    """Every context from the start: no false birth, K found, and after the first scheduled checks
-    only the doubling ones (4 in 400 scenes) and a few that novelty triggers."""
+    """Every context from the start: K found and no false birth in all but a few streams, and after
+    the first scheduled checks only the doubling ones (4 in 400 scenes) and a few that novelty triggers."""
     scheduled = 4  # after scenes 50, 100, 200 and 400 (birth_check_interval 25)
-    for seed in SEEDS[:2]:
-        row = steady_run(scenario, seed)
-        assert row["max_excess"] == 0 and row["final_k"] == (3 if scenario == "paper" else 5), row
-        assert scheduled <= row["checks_after_start"] <= scheduled + 8, row
+    true_k = 3 if scenario == "paper" else 5
+    rows = [steady_run(scenario, seed) for seed in STEADY_SEEDS]
+    outcomes = [(row["final_k"], row["max_excess"]) for row in rows]
+    assert sum(row["final_k"] == true_k for row in rows) >= 23, outcomes
+    assert sum(row["max_excess"] > 0 for row in rows) <= 3, outcomes
+    assert all(scheduled <= row["checks_after_start"] <= scheduled + 8 for row in rows), rows
 
 
 def test_novelty_is_zero_for_a_repeated_scene_and_large_for_unseen_concepts() -> None:

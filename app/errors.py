@@ -171,8 +171,14 @@ class StorageUnavailable(ServiceUnavailable):
 
     error = "storage_unavailable"
 
-    def __init__(self, reason: str, retry_after: int = 1) -> None:
-        super().__init__(f"storage unavailable: {reason}; nothing was changed, retry later", retry_after)
+    def __init__(self, reason: str, retry_after: int = 1, *, outcome_unknown: bool = False) -> None:
+        outcome = (
+            "the connection was lost after the commit was sent, so the database may have stored the write: "
+            "retry with the same Idempotency-Key to get its stored answer"
+            if outcome_unknown
+            else "nothing was changed, retry later"
+        )
+        super().__init__(f"storage unavailable: {reason}; {outcome}", retry_after)
 
 
 class StorageBusy(ServiceUnavailable):
@@ -337,11 +343,12 @@ def is_storage_busy(exc: BaseException) -> bool:
     return getattr(original, "sqlstate", None) == LOCK_NOT_AVAILABLE
 
 
-def storage_error(exc: BaseException) -> ServiceUnavailable:
-    """The 503 of a storage failure: ``storage_busy`` for a lock wait that ran out, else ``storage_unavailable``."""
+def storage_error(exc: BaseException, *, outcome_unknown: bool = False) -> ServiceUnavailable:
+    """The 503 of a storage failure: ``storage_busy`` for a lock wait that ran out, else ``storage_unavailable``;
+    ``outcome_unknown``: the connection was lost after the commit was sent (the detail says so)."""
     if is_storage_busy(exc):
         return StorageBusy(storage_failure_reason(exc))
-    return StorageUnavailable(storage_failure_reason(exc))
+    return StorageUnavailable(storage_failure_reason(exc), outcome_unknown=outcome_unknown)
 
 
 async def _storage_error(_request: Request, exc: Exception) -> JSONResponse:

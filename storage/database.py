@@ -32,6 +32,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from sqlalchemy.pool import Pool
 from sqlalchemy.types import TypeEngine
 
+from storage.unit_of_work import commit_sent
 from storage.write_turns import WriteTurn
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
@@ -346,6 +347,7 @@ def pipelined(session: Session, *, commit: bool = False) -> Iterator[None]:
             yield
             if commit:
                 session.flush()
+                commit_sent(session)
                 with driver.cursor() as cursor:
                     cursor.execute("COMMIT", prepare=False)
     except connection.dialect.loaded_dbapi.Error as error:

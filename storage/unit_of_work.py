@@ -10,14 +10,29 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
+from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session, sessionmaker
 
 _AFTER_COMMIT = "contextweb_after_commit"
+_COMMIT_SENT = "contextweb_commit_sent"
 
 
 def after_commit(session: Session, callback: Callable[[], None]) -> None:
     """Run ``callback`` once ``session``'s transaction has committed (never if it rolls back)."""
     session.info.setdefault(_AFTER_COMMIT, []).append(callback)
+
+
+def commit_sent(session: Session) -> None:
+    """Mark ``session``'s ``COMMIT`` as on its way to the database: from here a lost connection
+    leaves the transaction's outcome to the database, which may have committed it."""
+    session.info[_COMMIT_SENT] = True
+
+
+def commit_outcome_unknown(session: Session, error: BaseException) -> bool:
+    """Whether ``error`` lost ``session``'s connection after its ``COMMIT`` was sent. Any other failure
+    of the commit (an error the database answered, SQLite's full disk or I/O error, after which
+    SQLite rolls back) leaves nothing stored."""
+    return bool(session.info.get(_COMMIT_SENT)) and isinstance(error, DBAPIError) and error.connection_invalidated
 
 
 @contextmanager
@@ -26,6 +41,7 @@ def unit_of_work(sessions: sessionmaker[Session]) -> Iterator[Session]:
     with sessions() as session:
         try:
             yield session
+            commit_sent(session)
             session.commit()
         except BaseException:
             session.rollback()

@@ -1,0 +1,123 @@
+"""A 503 says whether the write may have been stored (PostgreSQL, a real server, real lost connections).
+
+A connection lost before a scene's ``COMMIT`` was sent leaves nothing stored, and the 503 says
+"nothing was changed". Once the ``COMMIT`` is on its way, a lost connection leaves the outcome to the
+database, which may have committed; the 503 must not promise otherwise (a client without an
+Idempotency-Key that trusted "nothing was changed" would post the scene twice), and the retry with
+the key gets the stored answer or, as here, a new 201. The commit is held open by a deferred
+constraint trigger that sleeps in it, and the server's backend is ended (``pg_terminate_backend``)
+while it sleeps; the wait before the commit is an outside transaction holding the model's state row.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import httpx
+import psycopg
+import pytest
+from sqlalchemy import text
+
+from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
+from tests.faults import (
+    KeyedPost,
+    create_model,
+    database_name,
+    fresh_postgres_database,
+    model_invariants,
+    post_keyed_once,
+    postgres_admin_engine,
+)
+from tests.servers import running_server
+
+pytestmark = pytest.mark.postgres
+
+SLOW_COMMIT = """
+CREATE FUNCTION slow_commit() RETURNS trigger LANGUAGE plpgsql AS $$
+BEGIN PERFORM pg_sleep(30); RETURN NULL; END $$;
+CREATE CONSTRAINT TRIGGER slow_commit AFTER INSERT ON scene DEFERRABLE INITIALLY DEFERRED
+FOR EACH ROW EXECUTE FUNCTION slow_commit();
+"""
+
+
+def _end_backend_when(url: str, condition: str, seconds: float = 20.0) -> str:
+    """``pg_terminate_backend`` of the test database's backend matching ``condition`` (SQL on
+    pg_stat_activity) once one does; the query it was running."""
+    admin = postgres_admin_engine()
+    deadline = time.monotonic() + seconds
+    try:
+        with admin.connect() as connection:
+            while time.monotonic() < deadline:
+                row = connection.execute(
+                    text(f"SELECT pid, query FROM pg_stat_activity WHERE datname = :name AND {condition}"),
+                    {"name": database_name(url)},
+                ).first()
+                if row is not None:
+                    connection.execute(text("SELECT pg_terminate_backend(:pid)"), {"pid": row.pid})
+                    return str(row.query)
+                time.sleep(0.02)
+    finally:
+        admin.dispose()
+    raise AssertionError(f"no backend of the test database came to: {condition}")
+
+
+def _post_while(base_url: str, model_id: str, post: KeyedPost, fault: Callable[[], str]) -> tuple[httpx.Response, str]:
+    """``post`` on a thread while ``fault()`` runs here: the answer and what ``fault`` returned."""
+    answers: list[httpx.Response] = []
+
+    def run() -> None:
+        with httpx.Client(base_url=base_url, timeout=60) as client:
+            answers.append(post_keyed_once(client, model_id, post))
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    returned = fault()
+    thread.join(60)
+    assert answers, "the post got no answer"
+    return answers[0], returned
+
+
+def test_a_503_says_whether_the_commit_was_sent(tmp_path: Path) -> None:
+    bodies = concept_scenes(8, seed=3)
+    with fresh_postgres_database("contextweb_commit") as url, running_server(url, tmp_path) as server:
+        model_id = create_model(server.base_url, FAST_HYPERPARAMETERS, name="commit")
+        posts = [KeyedPost(key=f"k{index}", body=body) for index, body in enumerate(bodies)]
+        with httpx.Client(base_url=server.base_url, timeout=30) as client:
+            for post in posts[:4]:
+                assert post_keyed_once(client, model_id, post).status_code == 201
+
+        libpq_url = url.replace("postgresql+psycopg://", "postgresql://")
+        # Before the commit: the write waits for the model's row, held by an outside transaction.
+        with psycopg.connect(libpq_url) as outside:
+            outside.execute("SELECT 1 FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (model_id,))
+            answer, query = _post_while(
+                server.base_url, model_id, posts[4], lambda: _end_backend_when(url, "wait_event_type = 'Lock'")
+            )
+        assert "FOR UPDATE" in query.upper(), query
+        assert answer.status_code == 503, answer.text
+        assert answer.json()["error"] == "storage_unavailable" and "nothing was changed" in answer.json()["detail"]
+
+        # During the commit: the backend ends while the deferred trigger sleeps in COMMIT.
+        with psycopg.connect(libpq_url, autocommit=True) as admin:
+            admin.execute(SLOW_COMMIT)
+        answer, query = _post_while(
+            server.base_url, model_id, posts[6], lambda: _end_backend_when(url, "wait_event = 'PgSleep'")
+        )
+        assert query.strip().upper().startswith("COMMIT"), query
+        assert answer.status_code == 503 and answer.headers["retry-after"], answer.text
+        detail = answer.json()["detail"]
+        assert answer.json()["error"] == "storage_unavailable", answer.text
+        assert "may have stored the write" in detail and "same Idempotency-Key" in detail, detail
+        with psycopg.connect(libpq_url, autocommit=True) as admin:
+            admin.execute("DROP TRIGGER slow_commit ON scene")
+
+        with httpx.Client(base_url=server.base_url, timeout=30) as client:
+            for post in (posts[4], posts[6], posts[7]):  # the retries, then one more scene
+                retried = post_keyed_once(client, model_id, post)
+                assert retried.status_code == 201, retried.text
+                assert not post.replayed  # the ended transactions stored nothing
+        problems = model_invariants(url, [server.base_url], model_id, [posts[i] for i in (0, 1, 2, 3, 4, 6, 7)])
+        assert not problems, "\n".join(problems)

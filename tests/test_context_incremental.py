@@ -50,11 +50,13 @@ def test_growth_finds_the_contexts_of_generic_worlds(n_contexts: int, n_scenes: 
 
 
 def test_paper_rule_stops_at_three_without_verbs_and_hits_the_cap_with_them() -> None:
+    # K = 3 on 453 of 500 other seeds (1000-1499, 2026-12-06): at that rate 20 seeds fall below 15
+    # with probability 0.8 % (binomial); 5 seeds below 4 did with 7 %.
     without_verbs = [
         IncrementalLDA(seed=seed, k_selection="paper").fit(_paper_scenes(50, seed, False)).n_contexts
-        for seed in range(5)
+        for seed in range(20)
     ]
-    assert sum(k == 3 for k in without_verbs) >= 4, without_verbs
+    assert sum(k == 3 for k in without_verbs) >= 15, without_verbs
     capped = IncrementalLDA(seed=0, k_selection="paper", max_contexts=5).fit(_paper_scenes(50, 0))
     assert capped.n_contexts == 5 and capped.context_cap_reached
     assert capped.low_confidence_concepts()

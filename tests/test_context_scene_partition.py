@@ -82,36 +82,31 @@ TEST_SETS = range(100, 110)
 #: The perceived world of the stop-K test: recognition's quick objects of the hard world at this seed
 #: (≈ 25 s of feature extraction, shared with the other experiment tests of the process).
 PERCEIVED_SEED = 7
-#: Measured below the paper's 9-of-10 bar (issue 15; the report judges the same bar over its seeds):
-#: label documents at |D| = 5 (8/10; 10/10 on the test sets 0–9 these tests used before), perceived
-#: webs at |D| = 3 (7/10), 5 (5/10) and 10 (7/10); perceived webs reach 10/10 at |D| = 20.
-#: Strict: a fix makes these cases pass, and their marks must go.
-_BELOW_THE_PAPER = {
-    ("labels", 5): "8/10",
-    ("perceived", 3): "7/10",
-    ("perceived", 5): "5/10",
-    ("perceived", 10): "7/10",
+#: Test sets of 10 in which K must equal the contexts present, by case: bounds that a seed set of 10
+#: breaks with probability under 1 % (binomial) at the rate measured on 500 other test sets
+#: (1000-1499, 2026-12-06; label documents, and the perceived webs of world 7).
+#: The paper's bar is 9 of 10 (Fig. 11); the report judges it over its own seeds (issue 15). Measured
+#: per set: labels 0.956 (|D| = 3), 0.894 (5), 0.960 (10); perceived webs of world 7 0.702 (3), 0.568
+#: (5), 0.750 (10), 0.980 (20). Other perceived worlds differ: at |D| = 20 world 8 0.88, world 9 0.97,
+#: world 10 0.945, world 11 0.68 (200-300 sets each), so "10 of 10 at |D| = 20" is world 7's, not the
+#: hard world's in general. Until 2026-12-06 the cases below 9 of 10 were strict xfails on sets 100-109,
+#: which other seed sets passed (an unexpected pass) as often as 71 % of the time (labels, |D| = 5).
+STOP_K_BOUNDS = {
+    ("labels", 3): 8,
+    ("labels", 5): 6,
+    ("labels", 10): 8,
+    ("perceived", 3): 3,
+    ("perceived", 5): 2,
+    ("perceived", 10): 4,
+    ("perceived", 20): 8,
 }
 
 
-def _stop_k_cases() -> list[object]:
-    return [
-        pytest.param(
-            source,
-            n_scenes,
-            marks=[pytest.mark.xfail(strict=True, reason=f"measured {_BELOW_THE_PAPER[(source, n_scenes)]}")]
-            if (source, n_scenes) in _BELOW_THE_PAPER
-            else [],
-        )
-        for source in ("labels", "perceived")
-        for n_scenes in ((3, 5, 10) if source == "labels" else (3, 5, 10, 20))
-    ]
-
-
-@pytest.mark.parametrize(("source", "n_scenes"), _stop_k_cases())
+@pytest.mark.parametrize(("source", "n_scenes"), list(STOP_K_BOUNDS))
 def test_growth_stops_at_the_contexts_present_from_three_scenes(source: str, n_scenes: int) -> None:
-    """Fig. 11 / issue 4: with ≥ 3 scenes, K = the contexts the scenes hold in ≥ 9 of 10 test sets, on
-    the label documents (``Scene.tokens``) and on the paper's: the active concepts of perceived webs."""
+    """Fig. 11 / issue 4: with ≥ 3 scenes, K = the contexts the scenes hold, in at least the measured
+    share of 10 test sets, on the label documents (``Scene.tokens``) and on the paper's: the active
+    concepts of perceived webs."""
     hits = []
     for seed in TEST_SETS:
         if source == "labels":
@@ -124,7 +119,7 @@ def test_growth_stops_at_the_contexts_present_from_three_scenes(source: str, n_s
         present = len({c for scene in scenes for c in scene.object_contexts})
         found = IncrementalLDA(seed=seed).fit(tokens).n_contexts
         hits.append(found == present)
-    assert sum(hits) >= 9, hits
+    assert sum(hits) >= STOP_K_BOUNDS[(source, n_scenes)], hits
 
 
 @pytest.mark.xfail(strict=True, reason="test set 104 merges the Playroom and the Workshop (issue 15)")

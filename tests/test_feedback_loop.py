@@ -98,7 +98,10 @@ def test_each_context_row_is_normalised_by_structure(world, context_model) -> No
     assert ((verbs >= 0.0) & (verbs <= 1.0)).all()
     # Every context's prevalent noun (Table IV) carries its noun mass, and grasp applies to every noun (Table II).
     assert {vocabulary.nouns[i] for i in table.given_context[:, :n_nouns].argmax(axis=1)} == {"cup", "box", "cylinder"}
-    np.testing.assert_allclose(table.given_context[:, vocabulary.index("grasp")], 1.0, atol=0.05)
+    # Near 1, not 1: the contexts are estimated (the priors, a few stray assignments). The lowest
+    # context's grasp was 0.842 over 200 fits on other seeds (world 0, scenes and model seeds
+    # 1000-1099 and 3000-3099, 2026-12-06); 0.957 for this fixture, so atol 0.05 held here only.
+    assert (table.given_context[:, vocabulary.index("grasp")] >= 0.8).all()
 
 
 def test_context_pulls_a_boxlike_cup_back_to_cup(world, web, context_model) -> None:

@@ -45,7 +45,7 @@ from app.registry import ModelRuntime, ModelWrite
 from app.schemas.keys import Role
 from app.state import AppState
 from storage.repositories.incremental_lda import LockHeldElsewhere
-from storage.unit_of_work import commit_outcome_unknown, unit_of_work
+from storage.unit_of_work import unit_of_work
 
 T = TypeVar("T")
 logger = logging.getLogger("contextweb")
@@ -200,7 +200,6 @@ def model_write(
     by another transaction raises ``LockHeldElsewhere`` at once instead (nothing changed, nothing counted).
     ``idempotency_key``: a keyed scene's key, looked up with the lock (``ModelWrite.locked``).
     """
-    write: ModelWrite | None = None
     try:
         with model.writer.transaction(
             state.write_sessions, state.registry, wait=wait, idempotency_key=idempotency_key
@@ -214,8 +213,7 @@ def model_write(
         if failed and not is_storage_busy(error):  # a lock held elsewhere says nothing of the database's health
             state.storage.record_failure(storage_failure_reason(error))
         if failed:
-            unknown = write is not None and commit_outcome_unknown(write.session, error)
-            raise storage_error(error, outcome_unknown=unknown) from error
+            raise storage_error(error) from error
         if is_write_conflict(error):
             logger.warning(
                 "model %s: a write conflicts with a stored row and stored nothing: %s",

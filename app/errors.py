@@ -36,6 +36,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from app.schemas.common import UNION_TAGS, ErrorRead
 from core.errors import InvalidInputError
 from storage.database import LOCK_NOT_AVAILABLE
+from storage.unit_of_work import commit_outcome_unknown
 
 
 class ContextwebError(Exception):
@@ -343,12 +344,12 @@ def is_storage_busy(exc: BaseException) -> bool:
     return getattr(original, "sqlstate", None) == LOCK_NOT_AVAILABLE
 
 
-def storage_error(exc: BaseException, *, outcome_unknown: bool = False) -> ServiceUnavailable:
-    """The 503 of a storage failure: ``storage_busy`` for a lock wait that ran out, else ``storage_unavailable``;
-    ``outcome_unknown``: the connection was lost after the commit was sent (the detail says so)."""
+def storage_error(exc: BaseException) -> ServiceUnavailable:
+    """The 503 of a storage failure: ``storage_busy`` for a lock wait that ran out, else ``storage_unavailable``,
+    whose detail says whether the write may have been stored (the connection lost after its commit was sent)."""
     if is_storage_busy(exc):
         return StorageBusy(storage_failure_reason(exc))
-    return StorageUnavailable(storage_failure_reason(exc), outcome_unknown=outcome_unknown)
+    return StorageUnavailable(storage_failure_reason(exc), outcome_unknown=commit_outcome_unknown(exc))
 
 
 async def _storage_error(_request: Request, exc: Exception) -> JSONResponse:

@@ -15,6 +15,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 _AFTER_COMMIT = "contextweb_after_commit"
 _COMMIT_SENT = "contextweb_commit_sent"
+_OUTCOME_UNKNOWN = "contextweb_commit_outcome_unknown"
 
 
 def after_commit(session: Session, callback: Callable[[], None]) -> None:
@@ -28,11 +29,12 @@ def commit_sent(session: Session) -> None:
     session.info[_COMMIT_SENT] = True
 
 
-def commit_outcome_unknown(session: Session, error: BaseException) -> bool:
-    """Whether ``error`` lost ``session``'s connection after its ``COMMIT`` was sent. Any other failure
-    of the commit (an error the database answered, SQLite's full disk or I/O error, after which
-    SQLite rolls back) leaves nothing stored."""
-    return bool(session.info.get(_COMMIT_SENT)) and isinstance(error, DBAPIError) and error.connection_invalidated
+def commit_outcome_unknown(error: BaseException) -> bool:
+    """Whether ``error`` lost its connection after the transaction's ``COMMIT`` was sent (marked by
+    :func:`unit_of_work`): the database may have committed. Any other failure of a unit of work (one
+    before the commit, an error the database answered, SQLite's full disk or I/O error, after which
+    SQLite rolls back) left nothing stored."""
+    return bool(getattr(error, _OUTCOME_UNKNOWN, False))
 
 
 @contextmanager
@@ -43,7 +45,9 @@ def unit_of_work(sessions: sessionmaker[Session]) -> Iterator[Session]:
             yield session
             commit_sent(session)
             session.commit()
-        except BaseException:
+        except BaseException as error:
+            if session.info.get(_COMMIT_SENT) and isinstance(error, DBAPIError) and error.connection_invalidated:
+                setattr(error, _OUTCOME_UNKNOWN, True)
             session.rollback()
             raise
         for callback in session.info.pop(_AFTER_COMMIT, []):

@@ -36,9 +36,9 @@ from tests.servers import running_server
 pytestmark = pytest.mark.postgres
 
 SLOW_COMMIT = """
-CREATE FUNCTION slow_commit() RETURNS trigger LANGUAGE plpgsql AS $$
+CREATE OR REPLACE FUNCTION slow_commit() RETURNS trigger LANGUAGE plpgsql AS $$
 BEGIN PERFORM pg_sleep(30); RETURN NULL; END $$;
-CREATE CONSTRAINT TRIGGER slow_commit AFTER INSERT ON scene DEFERRABLE INITIALLY DEFERRED
+CREATE CONSTRAINT TRIGGER slow_commit AFTER INSERT ON {table} DEFERRABLE INITIALLY DEFERRED
 FOR EACH ROW EXECUTE FUNCTION slow_commit();
 """
 
@@ -66,11 +66,18 @@ def _end_backend_when(url: str, condition: str, seconds: float = 20.0) -> str:
 
 def _post_while(base_url: str, model_id: str, post: KeyedPost, fault: Callable[[], str]) -> tuple[httpx.Response, str]:
     """``post`` on a thread while ``fault()`` runs here: the answer and what ``fault`` returned."""
+    return _while(base_url, lambda client: post_keyed_once(client, model_id, post), fault)
+
+
+def _while(
+    base_url: str, request: Callable[[httpx.Client], httpx.Response], fault: Callable[[], str]
+) -> tuple[httpx.Response, str]:
+    """``request`` on a thread while ``fault()`` runs here: the answer and what ``fault`` returned."""
     answers: list[httpx.Response] = []
 
     def run() -> None:
         with httpx.Client(base_url=base_url, timeout=60) as client:
-            answers.append(post_keyed_once(client, model_id, post))
+            answers.append(request(client))
 
     thread = threading.Thread(target=run, daemon=True)
     thread.start()
@@ -102,7 +109,7 @@ def test_a_503_says_whether_the_commit_was_sent(tmp_path: Path) -> None:
 
         # During the commit: the backend ends while the deferred trigger sleeps in COMMIT.
         with psycopg.connect(libpq_url, autocommit=True) as admin:
-            admin.execute(SLOW_COMMIT)
+            admin.execute(SLOW_COMMIT.format(table="scene"))
         answer, query = _post_while(
             server.base_url, model_id, posts[6], lambda: _end_backend_when(url, "wait_event = 'PgSleep'")
         )
@@ -121,3 +128,19 @@ def test_a_503_says_whether_the_commit_was_sent(tmp_path: Path) -> None:
                 assert not post.replayed  # the ended transactions stored nothing
         problems = model_invariants(url, [server.base_url], model_id, [posts[i] for i in (0, 1, 2, 3, 4, 6, 7)])
         assert not problems, "\n".join(problems)
+
+        # Not a model's write: a model's creation, its commit ended the same way.
+        with psycopg.connect(libpq_url, autocommit=True) as admin:
+            admin.execute(SLOW_COMMIT.format(table="model"))
+        answer, query = _while(
+            server.base_url,
+            lambda client: client.post("/v1/models", json={"name": "in-doubt"}),
+            lambda: _end_backend_when(url, "wait_event = 'PgSleep'"),
+        )
+        assert query.strip().upper().startswith("COMMIT"), query
+        assert answer.status_code == 503 and answer.json()["error"] == "storage_unavailable", answer.text
+        assert "may have stored the write" in answer.json()["detail"], answer.text
+        with psycopg.connect(libpq_url, autocommit=True) as admin:
+            admin.execute("DROP TRIGGER slow_commit ON model")
+        names = [model["name"] for model in httpx.get(f"{server.base_url}/v1/models", timeout=30).json()]
+        assert names == ["commit"], names  # ended in its commit's trigger: not stored, and not listed

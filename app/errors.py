@@ -175,7 +175,8 @@ class StorageUnavailable(ServiceUnavailable):
     def __init__(self, reason: str, retry_after: int = 1, *, outcome_unknown: bool = False) -> None:
         outcome = (
             "the connection was lost after the commit was sent, so the database may have stored the write: "
-            "retry with the same Idempotency-Key to get its stored answer"
+            "retry a keyed write with the same Idempotency-Key to get its stored answer, and check before "
+            "repeating any other"
             if outcome_unknown
             else "nothing was changed, retry later"
         )

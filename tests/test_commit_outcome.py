@@ -64,11 +64,6 @@ def _end_backend_when(url: str, condition: str, seconds: float = 20.0) -> str:
     raise AssertionError(f"no backend of the test database came to: {condition}")
 
 
-def _post_while(base_url: str, model_id: str, post: KeyedPost, fault: Callable[[], str]) -> tuple[httpx.Response, str]:
-    """``post`` on a thread while ``fault()`` runs here: the answer and what ``fault`` returned."""
-    return _while(base_url, lambda client: post_keyed_once(client, model_id, post), fault)
-
-
 def _while(
     base_url: str, request: Callable[[httpx.Client], httpx.Response], fault: Callable[[], str]
 ) -> tuple[httpx.Response, str]:
@@ -100,8 +95,10 @@ def test_a_503_says_whether_the_commit_was_sent(tmp_path: Path) -> None:
         # Before the commit: the write waits for the model's row, held by an outside transaction.
         with psycopg.connect(libpq_url) as outside:
             outside.execute("SELECT 1 FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (model_id,))
-            answer, query = _post_while(
-                server.base_url, model_id, posts[4], lambda: _end_backend_when(url, "wait_event_type = 'Lock'")
+            answer, query = _while(
+                server.base_url,
+                lambda client: post_keyed_once(client, model_id, posts[4]),
+                lambda: _end_backend_when(url, "wait_event_type = 'Lock'"),
             )
         assert "FOR UPDATE" in query.upper(), query
         assert answer.status_code == 503, answer.text
@@ -110,8 +107,10 @@ def test_a_503_says_whether_the_commit_was_sent(tmp_path: Path) -> None:
         # During the commit: the backend ends while the deferred trigger sleeps in COMMIT.
         with psycopg.connect(libpq_url, autocommit=True) as admin:
             admin.execute(SLOW_COMMIT.format(table="scene"))
-        answer, query = _post_while(
-            server.base_url, model_id, posts[6], lambda: _end_backend_when(url, "wait_event = 'PgSleep'")
+        answer, query = _while(
+            server.base_url,
+            lambda client: post_keyed_once(client, model_id, posts[6]),
+            lambda: _end_backend_when(url, "wait_event = 'PgSleep'"),
         )
         assert query.strip().upper().startswith("COMMIT"), query
         assert answer.status_code == 503 and answer.headers["retry-after"], answer.text

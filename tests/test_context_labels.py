@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 
 import httpx
@@ -97,19 +98,13 @@ def test_scene_answers_the_stream_and_inference_carry_the_map_contexts_label(cli
 def _at_once(calls: list[Callable[[], httpx.Response]]) -> list[httpx.Response]:
     """The calls on threads of their own, released together; their responses in order."""
     start = threading.Barrier(len(calls))
-    responses: list[httpx.Response | None] = [None] * len(calls)
 
-    def run(index: int) -> None:
+    def run(call: Callable[[], httpx.Response]) -> httpx.Response:
         start.wait()
-        responses[index] = calls[index]()
+        return call()
 
-    threads = [threading.Thread(target=run, args=(index,)) for index in range(len(calls))]
-    for thread in threads:
-        thread.start()
-    for thread in threads:
-        thread.join()
-    assert all(response is not None for response in responses)
-    return [response for response in responses if response is not None]
+    with ThreadPoolExecutor(len(calls)) as pool:
+        return list(pool.map(run, calls))
 
 
 def test_labels_written_at_once_from_two_processes_all_succeed(database_url: str) -> None:

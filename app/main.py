@@ -115,6 +115,7 @@ def _start(settings: Settings) -> AppState:
         sqlite_synchronous=settings.sqlite_synchronous,
         pool_size=settings.database_pool_size,
         sqlite_busy_timeout_ms=settings.sqlite_busy_timeout_ms,
+        write_deadline_seconds=settings.write_deadline_seconds,
     )
     try:
         require_schema_at_head(engine)

@@ -32,7 +32,8 @@ from sqlalchemy.orm import Session, sessionmaker
 from sqlalchemy.pool import Pool
 from sqlalchemy.types import TypeEngine
 
-from storage.unit_of_work import commit_sent
+from storage.deadlines import WRITE_DEADLINES
+from storage.unit_of_work import commit_sent, deadline_passed
 from storage.write_turns import WriteTurn
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
@@ -42,6 +43,7 @@ SQLITE_BUSY_TIMEOUT_MS = 5_000
 _WRITE_OPTION = "contextweb_write"
 _LOCK_WAIT_OPTION = "contextweb_lock_wait_ms"
 _DRIVER_OF_TRANSACTION = "contextweb_driver"
+_DEADLINE_TOKEN = "contextweb_write_deadline"
 
 
 def is_sqlite(url: str) -> bool:
@@ -83,9 +85,11 @@ def create_database_engine(
     sqlite_synchronous: str = "FULL",
     pool_size: int = 8,
     sqlite_busy_timeout_ms: int = SQLITE_BUSY_TIMEOUT_MS,
+    write_deadline_seconds: float | None = None,
 ) -> Engine:
     """An engine for ``url``; SQLite files get their folder created and the pragmas above; PostgreSQL
-    connections the time-outs above."""
+    connections the time-outs above, and with ``write_deadline_seconds`` a deadline on each write
+    transaction (:func:`_arm_write_deadline`; the server's is ``CONTEXTWEB_WRITE_DEADLINE_SECONDS``)."""
     url = normalise_url(url)
     if not is_sqlite(url):
         engine = create_engine(
@@ -95,6 +99,8 @@ def create_database_engine(
             connect_args={**POSTGRES_CONNECT_ARGS, "options": POSTGRES_SESSION_OPTIONS},
         )
         _install_postgres_liveness_check(engine)
+        if write_deadline_seconds is not None:
+            _WRITE_DEADLINE_SECONDS[engine.pool] = write_deadline_seconds
         return engine
     database = make_url(url).database
     if database and database != ":memory:":
@@ -108,6 +114,31 @@ def create_database_engine(
 #: Per SQLite engine (its pool, which its option engines share): the turn this process's write
 #: transactions take at the database's write lock (storage/write_turns.py).
 _WRITE_TURNS: weakref.WeakKeyDictionary[Pool, WriteTurn] = weakref.WeakKeyDictionary()
+#: Per PostgreSQL engine given one: how long a write transaction may run (storage/deadlines.py).
+_WRITE_DEADLINE_SECONDS: weakref.WeakKeyDictionary[Pool, float] = weakref.WeakKeyDictionary()
+
+
+@event.listens_for(Session, "after_begin")
+def _arm_write_deadline(session: Session, _transaction: Any, connection: Connection) -> None:
+    """A write transaction on an engine with a write deadline: its connection is cut once the deadline
+    passes (storage/deadlines.py), counted from its ``BEGIN``. The deadline is the transaction's, not a
+    statement's: a write's statements are milliseconds, and its one long wait, for a model's lock
+    elsewhere, ends at ``lock_timeout`` (10 s), so the deadline only ends a database that stopped
+    answering. Reads have none: a model's first load may rightly take longer."""
+    seconds = _WRITE_DEADLINE_SECONDS.get(connection.engine.pool)
+    if seconds is None or not connection.get_execution_options().get(_WRITE_OPTION, False):
+        return
+    driver = connection.connection.driver_connection
+    assert driver is not None  # a connection just begun on is not invalidated
+    session.info[_DEADLINE_TOKEN] = WRITE_DEADLINES.arm(
+        driver.fileno(), seconds, lambda: deadline_passed(session, seconds)
+    )
+
+
+@event.listens_for(Session, "after_transaction_end")
+def _disarm_write_deadline(session: Session, transaction: Any) -> None:
+    if transaction.parent is None and _DEADLINE_TOKEN in session.info:
+        WRITE_DEADLINES.disarm(session.info.pop(_DEADLINE_TOKEN))
 
 
 @contextmanager

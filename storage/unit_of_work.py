@@ -16,6 +16,7 @@ from sqlalchemy.orm import Session, sessionmaker
 _AFTER_COMMIT = "contextweb_after_commit"
 _COMMIT_SENT = "contextweb_commit_sent"
 _OUTCOME_UNKNOWN = "contextweb_commit_outcome_unknown"
+_DEADLINE_PASSED = "contextweb_write_deadline_passed"
 
 
 def after_commit(session: Session, callback: Callable[[], None]) -> None:
@@ -37,6 +38,17 @@ def commit_outcome_unknown(error: BaseException) -> bool:
     return bool(getattr(error, _OUTCOME_UNKNOWN, False))
 
 
+def deadline_passed(session: Session, seconds: float) -> None:
+    """Mark ``session``'s connection as cut by its write deadline of ``seconds`` (storage/deadlines.py)."""
+    session.info[_DEADLINE_PASSED] = seconds
+
+
+def write_deadline_passed(error: BaseException) -> float | None:
+    """The write deadline (seconds) whose cut of the connection made ``error`` (marked by
+    :func:`unit_of_work`), or None: the database stopped answering the write."""
+    return getattr(error, _DEADLINE_PASSED, None)
+
+
 @contextmanager
 def unit_of_work(sessions: sessionmaker[Session]) -> Iterator[Session]:
     """A session committed when the block ends normally and rolled back when it raises."""
@@ -46,8 +58,11 @@ def unit_of_work(sessions: sessionmaker[Session]) -> Iterator[Session]:
             commit_sent(session)
             session.commit()
         except BaseException as error:
-            if session.info.get(_COMMIT_SENT) and isinstance(error, DBAPIError) and error.connection_invalidated:
-                setattr(error, _OUTCOME_UNKNOWN, True)
+            if isinstance(error, DBAPIError) and error.connection_invalidated:
+                if session.info.get(_COMMIT_SENT):
+                    setattr(error, _OUTCOME_UNKNOWN, True)
+                if _DEADLINE_PASSED in session.info:
+                    setattr(error, _DEADLINE_PASSED, session.info[_DEADLINE_PASSED])
             session.rollback()
             raise
         for callback in session.info.pop(_AFTER_COMMIT, []):

@@ -29,17 +29,18 @@ import errno
 import os
 import select
 import shutil
+import signal
 import socket
 import sqlite3
 import subprocess
 import threading
 import time
 import uuid
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Self
+from typing import Any, Self, TypeVar
 
 import httpx
 import pytest
@@ -52,6 +53,8 @@ from storage.migrations import upgrade_to_head
 from storage.models import Scene
 from storage.repositories import incremental_lda as lda_repository
 from tests.conftest import POSTGRES_SERVER_URL
+
+T = TypeVar("T")
 
 # --------------------------------------------------------------------------- PostgreSQL
 
@@ -146,6 +149,80 @@ def postgres_outage_for(name: str, seconds: float) -> None:
     """An outage of database ``name`` lasting ``seconds``."""
     with postgres_outage(name):
         time.sleep(seconds)
+
+
+SLOW_COMMIT = """
+CREATE OR REPLACE FUNCTION slow_commit() RETURNS trigger LANGUAGE plpgsql AS $$
+BEGIN PERFORM pg_sleep({seconds}); RETURN NULL; END $$;
+CREATE CONSTRAINT TRIGGER slow_commit AFTER INSERT ON {table} DEFERRABLE INITIALLY DEFERRED
+FOR EACH ROW EXECUTE FUNCTION slow_commit();
+"""
+"""SQL of a deferred constraint trigger that holds every ``COMMIT`` inserting into ``{table}`` for
+``{seconds}`` (its backend waits with ``wait_event = 'PgSleep'``); ``DROP TRIGGER slow_commit ON
+{table}`` ends it."""
+
+
+def backend_when(url: str, condition: str, seconds: float = 20.0) -> tuple[int, str]:
+    """The pid and query of the backend of database ``url`` matching ``condition`` (SQL on
+    ``pg_stat_activity``), once one does, polled every 20 ms for up to ``seconds``."""
+    admin = postgres_admin_engine()
+    deadline = time.monotonic() + seconds
+    try:
+        with admin.connect() as connection:
+            while time.monotonic() < deadline:
+                row = connection.execute(
+                    text(f"SELECT pid, query FROM pg_stat_activity WHERE datname = :name AND {condition}"),
+                    {"name": database_name(url)},
+                ).first()
+                if row is not None:
+                    return int(row.pid), str(row.query)
+                time.sleep(0.02)
+    finally:
+        admin.dispose()
+    raise AssertionError(f"no backend of the test database came to: {condition}")
+
+
+def end_backend(pid: int) -> None:
+    """``pg_terminate_backend(pid)``: the backend's client finds its connection lost."""
+    admin = postgres_admin_engine()
+    try:
+        with admin.connect() as connection:
+            connection.execute(text("SELECT pg_terminate_backend(:pid)"), {"pid": pid})
+    finally:
+        admin.dispose()
+
+
+@contextmanager
+def frozen_backend(pid: int) -> Iterator[None]:
+    """The PostgreSQL backend ``pid`` stopped (SIGSTOP) inside the block, as in a stalled VM: its
+    connection stays open and the kernel still acknowledges what its client sends, but nothing is
+    answered. Continued (SIGCONT) in ``finally``, whatever happened."""
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        yield
+    finally:
+        os.kill(pid, signal.SIGCONT)
+
+
+def answer_while(
+    base_url: str, request: Callable[[httpx.Client], httpx.Response], fault: Callable[[], T]
+) -> tuple[httpx.Response, T, float]:
+    """``request`` on a thread while ``fault()`` runs here: the answer, what ``fault`` returned,
+    and the seconds the request took."""
+    answers: list[tuple[httpx.Response, float]] = []
+
+    def run() -> None:
+        with httpx.Client(base_url=base_url, timeout=60) as client:
+            started = time.monotonic()
+            answer = request(client)
+            answers.append((answer, time.monotonic() - started))
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    returned = fault()
+    thread.join(60)
+    assert answers, "the request got no answer"
+    return answers[0][0], returned, answers[0][1]
 
 
 # --------------------------------------------------------------------------- disks

@@ -11,75 +11,34 @@ while it sleeps; the wait before the commit is an outside transaction holding th
 
 from __future__ import annotations
 
-import threading
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import httpx
 import psycopg
 import pytest
-from sqlalchemy import text
 
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
 from tests.faults import (
+    SLOW_COMMIT,
     KeyedPost,
+    answer_while,
+    backend_when,
     create_model,
-    database_name,
+    end_backend,
     fresh_postgres_database,
     model_invariants,
     post_keyed_once,
-    postgres_admin_engine,
 )
 from tests.servers import running_server
 
 pytestmark = pytest.mark.postgres
 
-SLOW_COMMIT = """
-CREATE OR REPLACE FUNCTION slow_commit() RETURNS trigger LANGUAGE plpgsql AS $$
-BEGIN PERFORM pg_sleep(30); RETURN NULL; END $$;
-CREATE CONSTRAINT TRIGGER slow_commit AFTER INSERT ON {table} DEFERRABLE INITIALLY DEFERRED
-FOR EACH ROW EXECUTE FUNCTION slow_commit();
-"""
 
-
-def _end_backend_when(url: str, condition: str, seconds: float = 20.0) -> str:
-    """``pg_terminate_backend`` of the test database's backend matching ``condition`` (SQL on
-    pg_stat_activity) once one does; the query it was running."""
-    admin = postgres_admin_engine()
-    deadline = time.monotonic() + seconds
-    try:
-        with admin.connect() as connection:
-            while time.monotonic() < deadline:
-                row = connection.execute(
-                    text(f"SELECT pid, query FROM pg_stat_activity WHERE datname = :name AND {condition}"),
-                    {"name": database_name(url)},
-                ).first()
-                if row is not None:
-                    connection.execute(text("SELECT pg_terminate_backend(:pid)"), {"pid": row.pid})
-                    return str(row.query)
-                time.sleep(0.02)
-    finally:
-        admin.dispose()
-    raise AssertionError(f"no backend of the test database came to: {condition}")
-
-
-def _while(
-    base_url: str, request: Callable[[httpx.Client], httpx.Response], fault: Callable[[], str]
-) -> tuple[httpx.Response, str]:
-    """``request`` on a thread while ``fault()`` runs here: the answer and what ``fault`` returned."""
-    answers: list[httpx.Response] = []
-
-    def run() -> None:
-        with httpx.Client(base_url=base_url, timeout=60) as client:
-            answers.append(request(client))
-
-    thread = threading.Thread(target=run, daemon=True)
-    thread.start()
-    returned = fault()
-    thread.join(60)
-    assert answers, "the post got no answer"
-    return answers[0], returned
+def _end_backend_when(url: str, condition: str) -> str:
+    """End the test database's backend matching ``condition`` once one does; the query it was running."""
+    pid, query = backend_when(url, condition)
+    end_backend(pid)
+    return query
 
 
 def test_a_503_says_whether_the_commit_was_sent(tmp_path: Path) -> None:
@@ -95,7 +54,7 @@ def test_a_503_says_whether_the_commit_was_sent(tmp_path: Path) -> None:
         # Before the commit: the write waits for the model's row, held by an outside transaction.
         with psycopg.connect(libpq_url) as outside:
             outside.execute("SELECT 1 FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (model_id,))
-            answer, query = _while(
+            answer, query, _ = answer_while(
                 server.base_url,
                 lambda client: post_keyed_once(client, model_id, posts[4]),
                 lambda: _end_backend_when(url, "wait_event_type = 'Lock'"),
@@ -106,8 +65,8 @@ def test_a_503_says_whether_the_commit_was_sent(tmp_path: Path) -> None:
 
         # During the commit: the backend ends while the deferred trigger sleeps in COMMIT.
         with psycopg.connect(libpq_url, autocommit=True) as admin:
-            admin.execute(SLOW_COMMIT.format(table="scene"))
-        answer, query = _while(
+            admin.execute(SLOW_COMMIT.format(table="scene", seconds=30))
+        answer, query, _ = answer_while(
             server.base_url,
             lambda client: post_keyed_once(client, model_id, posts[6]),
             lambda: _end_backend_when(url, "wait_event = 'PgSleep'"),
@@ -130,8 +89,8 @@ def test_a_503_says_whether_the_commit_was_sent(tmp_path: Path) -> None:
 
         # Not a model's write: a model's creation, its commit ended the same way.
         with psycopg.connect(libpq_url, autocommit=True) as admin:
-            admin.execute(SLOW_COMMIT.format(table="model"))
-        answer, query = _while(
+            admin.execute(SLOW_COMMIT.format(table="model", seconds=30))
+        answer, query, _ = answer_while(
             server.base_url,
             lambda client: client.post("/v1/models", json={"name": "in-doubt"}),
             lambda: _end_backend_when(url, "wait_event = 'PgSleep'"),

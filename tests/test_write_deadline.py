@@ -1,0 +1,125 @@
+"""A write to a database that stops answering ends at the write deadline (PostgreSQL, a real server).
+
+The server's backend is frozen (SIGSTOP, as in a stalled VM): its connection stays open and the
+kernel acknowledges what the server sends, so without a deadline the write waits as long as the
+freeze. With ``CONTEXTWEB_WRITE_DEADLINE_SECONDS`` the connection is cut at the deadline
+(storage/deadlines.py) and the write answered 503, saying whether its ``COMMIT`` had been sent:
+
+- frozen while it waits for the model's lock (before its commit): "nothing was changed", and the
+  thawed backend finds its client gone and rolls back, so the keyed retry stores the scene anew;
+- frozen in its ``COMMIT`` (a deferred trigger sleeps in it): "may have stored the write", and the
+  thawed backend does commit, so the keyed retry gets the stored answer, not a second scene.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import httpx
+import psycopg
+import pytest
+
+from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
+from tests.faults import (
+    SLOW_COMMIT,
+    KeyedPost,
+    answer_while,
+    backend_when,
+    create_model,
+    fresh_postgres_database,
+    frozen_backend,
+    model_invariants,
+    post_keyed_once,
+)
+from tests.servers import running_server
+
+pytestmark = pytest.mark.postgres
+
+DEADLINE_SECONDS = 4.0
+FREEZE_SECONDS = 12.0  # well past the deadline: an answer before the thaw can only be the deadline's
+COMMIT_SLEEP_SECONDS = 1.0  # a commit that would end well within the deadline, but for the freeze
+
+
+def _assert_cut_at_the_deadline(answer: httpx.Response, seconds: float, outcome: str) -> None:
+    assert answer.status_code == 503 and answer.headers["retry-after"], answer.text
+    body = answer.json()
+    assert body["error"] == "storage_unavailable", body
+    assert f"did not answer within the write deadline of {DEADLINE_SECONDS:g} s" in body["detail"], body
+    assert outcome in body["detail"], body
+    # The deadline runs from the write transaction's BEGIN, which follows the request's arrival.
+    assert DEADLINE_SECONDS - 0.05 <= seconds < DEADLINE_SECONDS + 4.0, seconds
+
+
+def test_a_frozen_database_ends_a_write_at_its_deadline_and_nothing_is_doubled(tmp_path: Path) -> None:
+    bodies = concept_scenes(8, seed=11)
+    posts = [KeyedPost(key=f"k{index}", body=body) for index, body in enumerate(bodies)]
+    with (
+        fresh_postgres_database("contextweb_deadline") as url,
+        running_server(url, tmp_path, env={"CONTEXTWEB_WRITE_DEADLINE_SECONDS": f"{DEADLINE_SECONDS:g}"}) as server,
+    ):
+        model_id = create_model(server.base_url, FAST_HYPERPARAMETERS, name="deadline")
+        with httpx.Client(base_url=server.base_url, timeout=30) as client:
+            for post in posts[:4]:
+                assert post_keyed_once(client, model_id, post).status_code == 201
+        libpq_url = url.replace("postgresql+psycopg://", "postgresql://")
+
+        # Before the commit: frozen while it waits for the model's row, held by an outside transaction.
+        with psycopg.connect(libpq_url) as outside:
+            outside.execute("SELECT 1 FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (model_id,))
+
+            def freeze_the_waiting_write() -> str:
+                pid, query = backend_when(url, "wait_event_type = 'Lock'")
+                with frozen_backend(pid):
+                    outside.commit()  # the lock is free, but the frozen backend cannot take it
+                    time.sleep(FREEZE_SECONDS)
+                return query
+
+            answer, query, seconds = answer_while(
+                server.base_url, lambda client: post_keyed_once(client, model_id, posts[4]), freeze_the_waiting_write
+            )
+        assert "FOR UPDATE" in query.upper(), query
+        _assert_cut_at_the_deadline(answer, seconds, "nothing was changed")
+
+        # During the commit: frozen while a deferred trigger sleeps in its COMMIT.
+        with psycopg.connect(libpq_url, autocommit=True) as admin:
+            admin.execute(SLOW_COMMIT.format(table="scene", seconds=COMMIT_SLEEP_SECONDS))
+
+        def freeze_the_commit() -> str:
+            pid, query = backend_when(url, "wait_event = 'PgSleep'")
+            with frozen_backend(pid):
+                time.sleep(FREEZE_SECONDS)
+            backend_gone(url, pid)
+            return query
+
+        answer, query, seconds = answer_while(
+            server.base_url, lambda client: post_keyed_once(client, model_id, posts[5]), freeze_the_commit
+        )
+        assert query.strip().upper().startswith("COMMIT"), query
+        _assert_cut_at_the_deadline(answer, seconds, "may have stored the write")
+        with psycopg.connect(libpq_url, autocommit=True) as admin:
+            admin.execute("DROP TRIGGER slow_commit ON scene")
+
+        with httpx.Client(base_url=server.base_url, timeout=30) as client:
+            for post in (posts[4], posts[5], posts[6]):  # the two retries, then one more scene
+                retried = post_keyed_once(client, model_id, post)
+                assert retried.status_code == 201, retried.text
+            # Thawed, the first backend found its client gone before it had the lock: nothing stored.
+            assert not posts[4].replayed
+            # The second had the COMMIT: it committed once thawed, and the retry replays that scene.
+            assert posts[5].replayed
+            assert not posts[6].replayed
+        problems = model_invariants(url, [server.base_url], model_id, posts[:7])
+        assert not problems, "\n".join(problems)
+
+
+def backend_gone(url: str, pid: int, seconds: float = 10.0) -> None:
+    """Wait until the thawed backend ``pid`` has finished (committed or not) and exited."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        try:
+            backend_when(url, f"pid = {int(pid)}", seconds=0.05)
+        except AssertionError:
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"backend {pid} still runs {seconds} s after its thaw")

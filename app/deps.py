@@ -25,7 +25,7 @@ from functools import partial
 from typing import Annotated, TypeVar
 
 import anyio
-from fastapi import Depends, Path, Security
+from fastapi import Depends, Header, Path, Security
 from fastapi.security import APIKeyHeader
 from sqlalchemy.orm import Session
 from starlette.requests import HTTPConnection, Request
@@ -98,6 +98,18 @@ WriteAccess = Depends(write_access)
 AdminAccess = Depends(admin_access)
 #: The caller of a read route (FastAPI solves ``ReadAccess`` once per request, however often it is named).
 ReadPrincipal = Annotated[Principal, ReadAccess]
+
+IdempotencyKey = Annotated[
+    str | None,
+    Header(
+        alias="Idempotency-Key",
+        min_length=1,
+        max_length=200,
+        pattern=r"^[\x21-\x7e]+$",
+        description="Makes retries safe: the same key and body return the stored answer and change nothing.",
+    ),
+]
+"""A keyed write's Idempotency-Key (a scene's, per model; a model's creation, one namespace for all)."""
 
 ModelId = Annotated[
     str, Path(description="The model's id.", max_length=64, examples=["3f2c0b9e5d7a4e1f8a6b2c4d9e0f1a2b"])

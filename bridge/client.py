@@ -361,8 +361,13 @@ class Models(_Resource):
         sigma: float | None = None,
         hyperparameters: Hyperparameters | dict[str, Any] | None = None,
         vocabulary: Vocabulary | None = None,
+        idempotency_key: str | None = None,
     ) -> Model:
-        """A new, empty model (the paper's 29 concepts unless ``vocabulary`` is given)."""
+        """A new, empty model (the paper's 29 concepts unless ``vocabulary`` is given).
+
+        The request carries an ``Idempotency-Key`` (``idempotency_key``, or a new UUID for this
+        call), so the transport retries it like a scene: a retry of a creation the service may
+        have stored answers that model rather than making a second one."""
         body = ModelCreate(
             name=name,
             seed=seed,
@@ -370,7 +375,12 @@ class Models(_Resource):
             hyperparameters=hyperparameters or Hyperparameters(),
             vocabulary=vocabulary,
         )
-        data = self._client.request("POST", "/v1/models", json=body.model_dump(mode="json", exclude_defaults=True))
+        data = self._client.request(
+            "POST",
+            "/v1/models",
+            json=body.model_dump(mode="json", exclude_defaults=True),
+            idempotency_key=idempotency_key or uuid.uuid4().hex,
+        )
         return self._client._cast(Model, data)
 
     def list(self) -> list[Model]:

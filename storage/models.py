@@ -105,13 +105,24 @@ def _model_fk() -> Any:
     return ForeignKey("model.id", ondelete="CASCADE")
 
 
+#: Only rows written with an Idempotency-Key are indexed by it (models: alembic 0009; scenes: 0008).
+_KEYED = text("idempotency_key IS NOT NULL")
+
+
 class Model(Base):
     """One independent context model (one robot or environment) and its fitted perception."""
 
     __tablename__ = "model"
+    __table_args__ = (
+        Index("ix_model_idempotency_key", "idempotency_key", unique=True, sqlite_where=_KEYED, postgresql_where=_KEYED),
+    )
 
     id: Mapped[str] = mapped_column(String(32), primary_key=True)
     name: Mapped[str] = mapped_column(String(200))
+    idempotency_key: Mapped[str | None] = mapped_column(String(200))
+    """The Idempotency-Key the model was created with (one namespace for every client: a UUID), or null."""
+    request_hash: Mapped[bytes | None] = mapped_column(LargeBinary)
+    """The SHA-256 digest of the creation's body, which a retry under ``idempotency_key`` must match."""
     seed: Mapped[int] = mapped_column(BigInteger)
     sigma: Mapped[float] = mapped_column(Float)
     hyperparameters: Mapped[dict[str, Any]]
@@ -151,10 +162,6 @@ class Word(Base):
     name: Mapped[str] = mapped_column(String(200))
     kind: Mapped[str | None] = mapped_column(String(20))
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
-
-
-#: Only keyed scenes are indexed by key (alembic 0008): a scene posted without one is never looked up by it.
-_KEYED = text("idempotency_key IS NOT NULL")
 
 
 class Scene(Base):

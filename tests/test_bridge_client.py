@@ -219,3 +219,32 @@ print('ok', sorted(m for m in sys.modules if m.split('.')[0] in {'httpx', 'pydan
     )
     assert result.returncode == 0, result.stderr
     assert result.stdout.startswith("ok")
+
+
+def test_a_model_creation_carries_a_key_so_a_503_that_may_have_stored_it_is_retried_with_it() -> None:
+    requests: list[httpx.Request] = []
+    created: dict[str, dict] = {}
+
+    def service(request: httpx.Request) -> httpx.Response:
+        requests.append(request)
+        key = request.headers["Idempotency-Key"]
+        created.setdefault(key, {"id": f"model-{len(created)}", **json.loads(request.content)})
+        if len(requests) == 1:  # stored, but the answer is a 503 that says it may have been
+            detail = "storage unavailable: ...; the database may have stored the write: retry a keyed write"
+            return httpx.Response(
+                503, json={"error": "storage_unavailable", "detail": detail}, headers={"Retry-After": "0"}
+            )
+        model = created[key]
+        answer = {
+            "id": model["id"], "name": model["name"], "seed": 0, "hyperparameters": {}, "vocabulary": {},
+            "context_count": 1, "vocabulary_size": 29, "scene_count": 0, "training_object_count": 0,
+            "prototypes_fitted": False, "concept_web_fitted": False, "created_at": "2026-12-06T00:00:00Z",
+        }  # fmt: skip
+        return httpx.Response(201, json=answer, headers={"Idempotent-Replayed": "true"})
+
+    with Client("http://service", retry_policy=FAST, transport=httpx.MockTransport(service)) as client:
+        model = client.models.create("kitchen")
+        other = client.models.create("workshop")
+    assert model.id == "model-0" and other.id == "model-1" and len(created) == 2
+    keys = [request.headers["Idempotency-Key"] for request in requests]
+    assert keys[0] == keys[1] != keys[2] and all(len(key) == 32 for key in keys), keys

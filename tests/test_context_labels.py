@@ -2,17 +2,14 @@
 
 from __future__ import annotations
 
-import threading
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 
-import httpx
 import numpy as np
 from fastapi.testclient import TestClient
 
 from app.main import create_app
 from tests.conftest import CONTEXT_CONCEPTS, FAST_HYPERPARAMETERS, make_settings
+from tests.faults import at_once
 
 
 def _room_scene(room: str, rng: np.random.Generator) -> dict:
@@ -95,18 +92,6 @@ def test_scene_answers_the_stream_and_inference_carry_the_map_contexts_label(cli
     assert client.post(f"/v1/models/{model_id}/infer", json=scene).json()["map_context_label"] == "galley"
 
 
-def _at_once(calls: list[Callable[[], httpx.Response]]) -> list[httpx.Response]:
-    """The calls on threads of their own, released together; their responses in order."""
-    start = threading.Barrier(len(calls))
-
-    def run(call: Callable[[], httpx.Response]) -> httpx.Response:
-        start.wait()
-        return call()
-
-    with ThreadPoolExecutor(len(calls)) as pool:
-        return list(pool.map(run, calls))
-
-
 def test_labels_written_at_once_from_two_processes_all_succeed(database_url: str) -> None:
     """Two processes, two threads each, name one unlabelled context at the same moment, 25 times:
     each PATCH is a 200 (before, two that both found no row both inserted it, and one was a 500),
@@ -124,7 +109,7 @@ def test_labels_written_at_once_from_two_processes_all_succeed(database_url: str
             assert first.patch(url, json={"label": None}).status_code == 200
             sent = [f"room {round_}.{index}" for index in range(4)]
             clients = [first, first, second, second]
-            responses = _at_once(
+            responses = at_once(
                 [partial(client.patch, url, json={"label": label}) for client, label in zip(clients, sent)]
             )
             failed += [
@@ -149,7 +134,7 @@ def test_a_label_written_while_another_process_deletes_the_model_is_a_200_or_a_4
             model_id = created.json()["id"]
             assert first.post(f"/v1/models/{model_id}/scenes", json=_room_scene("kitchen", rng)).status_code == 201
             assert second.get(f"/v1/models/{model_id}").status_code == 200  # loaded there
-            label, deleted = _at_once(
+            label, deleted = at_once(
                 [
                     partial(second.patch, f"/v1/models/{model_id}/contexts/0", json={"label": f"room {round_}"}),
                     partial(first.delete, f"/v1/models/{model_id}"),

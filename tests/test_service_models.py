@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 from fastapi.testclient import TestClient
 
-from tests.conftest import FAST_HYPERPARAMETERS
+from app.main import create_app
+from tests.conftest import FAST_HYPERPARAMETERS, make_settings
+from tests.faults import at_once
 
 
 def test_create_get_list_and_delete(client: TestClient) -> None:
@@ -101,3 +105,48 @@ def test_the_deprecated_flat_body_is_accepted_and_answered_nested(client: TestCl
     assert paper.json()["hyperparameters"]["k_rule"]["tau"] == 0.2
     bad = client.post("/v1/models", json={"name": "x", "hyperparameters": {"alpha": -1}})
     assert bad.status_code == 422 and bad.json()["field"] == "hyperparameters.priors.alpha"
+
+
+def test_a_keyed_creation_retried_answers_its_model_and_a_changed_body_is_refused(client: TestClient) -> None:
+    body = {"name": "keyed", "seed": 4, "hyperparameters": FAST_HYPERPARAMETERS}
+    first = client.post("/v1/models", json=body, headers={"Idempotency-Key": "create-7f3a"})
+    assert first.status_code == 201 and "idempotent-replayed" not in first.headers, first.text
+    model_id = first.json()["id"]
+    scene = {"objects": [{"concepts": ["cup", "hard", "round"]}]}
+    assert client.post(f"/v1/models/{model_id}/scenes", json=scene).status_code == 201
+
+    again = client.post("/v1/models", json=body, headers={"Idempotency-Key": "create-7f3a"})
+    assert again.status_code == 201 and again.headers["idempotent-replayed"] == "true", again.text
+    assert again.json()["id"] == model_id and again.json()["scene_count"] == 1  # the model as it is now
+
+    changed = client.post("/v1/models", json={**body, "seed": 5}, headers={"Idempotency-Key": "create-7f3a"})
+    assert changed.status_code == 422, changed.text
+    assert changed.json()["error"] == "idempotency_key_reused" and changed.json()["field"] == "header.Idempotency-Key"
+    bad_key = client.post("/v1/models", json=body, headers={"Idempotency-Key": "two words"})
+    assert bad_key.status_code == 422 and "Idempotency-Key" in bad_key.json()["field"], bad_key.text
+
+    keyless = [client.post("/v1/models", json=body).json()["id"] for _ in range(2)]
+    assert len({model_id, *keyless}) == 3  # without a key every creation is a new model
+    listed = [model["id"] for model in client.get("/v1/models").json()]
+    assert sorted(listed) == sorted([model_id, *keyless])
+
+
+def test_one_key_created_at_once_on_two_processes_makes_one_model(database_url: str) -> None:
+    """Two processes, two threads each, create with one key at the same moment, 10 times: every
+    answer is a 201 naming the same model (a later insert meets the key's unique index, is undone
+    by its savepoint, and answers the stored model), and one model per key is stored."""
+    with (  # a server error is a 500 here, as a robot would get it, not an exception in the thread
+        TestClient(create_app(make_settings(database_url)), raise_server_exceptions=False) as first,
+        TestClient(create_app(make_settings(database_url)), raise_server_exceptions=False) as second,
+    ):
+        for round_ in range(10):
+            body = {"name": f"race {round_}", "hyperparameters": FAST_HYPERPARAMETERS}
+            headers = {"Idempotency-Key": f"race-{round_}"}
+            answers = at_once(
+                [partial(app.post, "/v1/models", json=body, headers=headers) for app in (first, second, first, second)]
+            )
+            assert all(answer.status_code == 201 for answer in answers), [answer.text for answer in answers]
+            assert len({answer.json()["id"] for answer in answers}) == 1, [answer.json() for answer in answers]
+            assert sum(answer.headers.get("idempotent-replayed") == "true" for answer in answers) == 3
+        names = [model["name"] for model in second.get("/v1/models").json()]
+        assert sorted(names) == sorted(f"race {round_}" for round_ in range(10))

@@ -8,7 +8,8 @@ freeze. With ``CONTEXTWEB_WRITE_DEADLINE_SECONDS`` the connection is cut at the 
 - frozen while it waits for the model's lock (before its commit): "nothing was changed", and the
   thawed backend finds its client gone and rolls back, so the keyed retry stores the scene anew;
 - frozen in its ``COMMIT`` (a deferred trigger sleeps in it): "may have stored the write", and the
-  thawed backend does commit, so the keyed retry gets the stored answer, not a second scene.
+  thawed backend does commit, so the keyed retry gets the stored answer, not a second scene;
+- a keyed model creation frozen in its ``COMMIT``: the same, and the retry answers the stored model.
 """
 
 from __future__ import annotations
@@ -111,6 +112,26 @@ def test_a_frozen_database_ends_a_write_at_its_deadline_and_nothing_is_doubled(t
             assert not posts[6].replayed
         problems = model_invariants(url, [server.base_url], model_id, posts[:7])
         assert not problems, "\n".join(problems)
+
+        # A keyed model creation frozen in its COMMIT: the thawed backend commits it, and the retry
+        # with the key answers that model instead of making a second one.
+        with psycopg.connect(libpq_url, autocommit=True) as admin:
+            admin.execute(SLOW_COMMIT.format(table="model", seconds=COMMIT_SLEEP_SECONDS))
+        creation = {"name": "in-doubt", "hyperparameters": FAST_HYPERPARAMETERS}
+        answer, query, seconds = answer_while(
+            server.base_url,
+            lambda client: client.post("/v1/models", json=creation, headers={"Idempotency-Key": "create-in-doubt"}),
+            freeze_the_commit,
+        )
+        assert query.strip().upper().startswith("COMMIT"), query
+        _assert_cut_at_the_deadline(answer, seconds, "may have stored the write")
+        with psycopg.connect(libpq_url, autocommit=True) as admin:
+            admin.execute("DROP TRIGGER slow_commit ON model")
+        with httpx.Client(base_url=server.base_url, timeout=30) as client:
+            retried = client.post("/v1/models", json=creation, headers={"Idempotency-Key": "create-in-doubt"})
+            assert retried.status_code == 201 and retried.headers["idempotent-replayed"] == "true", retried.text
+            names = [model["name"] for model in client.get("/v1/models").json()]
+        assert sorted(names) == ["deadline", "in-doubt"], names
 
 
 def backend_gone(url: str, pid: int, seconds: float = 10.0) -> None:

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, status
+from fastapi import APIRouter, Response, status
 
 from app.deps import (
     AdmissionDep,
+    IdempotencyKey,
     ModelDep,
     ReadAccess,
     ReadPrincipal,
@@ -18,6 +19,7 @@ from app.deps import (
 )
 from app.errors import (
     Forbidden,
+    IdempotencyKeyReused,
     InvalidInput,
     ModelBusy,
     ModelNotFound,
@@ -38,10 +40,21 @@ _AUTH = (Unauthorized, Forbidden)
     status_code=status.HTTP_201_CREATED,
     summary="Create a model",
     dependencies=[WriteAccess],
-    responses=error_responses(InvalidInput, *_AUTH),
+    responses=error_responses(InvalidInput, IdempotencyKeyReused, *_AUTH),
 )
-def create_model(body: ModelCreate, session: WriteSessionDep, state: StateDep) -> ModelRead:
-    return model_service.model_read(model_service.create_model(session, state.registry, body))
+def create_model(
+    body: ModelCreate,
+    session: WriteSessionDep,
+    state: StateDep,
+    response: Response,
+    idempotency_key: IdempotencyKey = None,
+) -> ModelRead:
+    """With an Idempotency-Key, a retry with the same body answers the model the first request created,
+    as it is now, with `Idempotent-Replayed: true`; keys are one namespace for every client (use a UUID)."""
+    created = model_service.create_model(session, state.registry, body, idempotency_key)
+    if created.replayed:
+        response.headers["Idempotent-Replayed"] = "true"
+    return model_service.model_read(created.model)
 
 
 @router.get("", summary="List the models (a scoped key's only)", responses=error_responses(Unauthorized))

@@ -5,11 +5,12 @@ from __future__ import annotations
 from functools import partial
 from typing import Annotated
 
-from fastapi import APIRouter, Header, Path, Query, Response, status
+from fastapi import APIRouter, Path, Query, Response, status
 
 from app.deps import (
     AdmissionDep,
     BodySizeDep,
+    IdempotencyKey,
     ModelDep,
     ReadAccess,
     ReadSessionDep,
@@ -42,16 +43,6 @@ from app.state import AppState
 
 router = APIRouter(prefix="/v1/models/{model_id}", tags=["scenes"])
 
-IdempotencyKey = Annotated[
-    str | None,
-    Header(
-        alias="Idempotency-Key",
-        min_length=1,
-        max_length=200,
-        pattern=r"^[\x21-\x7e]+$",
-        description="Makes retries safe: the same key and body return the stored answer and change nothing.",
-    ),
-]
 _ANALYSIS_ERRORS = (InvalidInput, ModelNotFound, ModelNotFitted, PayloadTooLarge, Unauthorized)
 
 

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import hashlib
 import uuid
+from typing import NamedTuple
 
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from app.errors import InvalidInput
+from app.errors import IdempotencyKeyReused, InvalidInput
 from app.registry import FittedPerception, ModelRegistry, ModelRuntime, ModelWriter, jsonable
 from app.schemas.models import Hyperparameters as HyperparametersSchema
 from app.schemas.models import ModelCreate, ModelRead, VocabularySchema
@@ -15,28 +18,75 @@ from app.stream import CLOSE_NORMAL, StreamHub
 from core.context import Hyperparameters, IncrementalLDA
 from core.errors import InvalidInputError
 from core.vocabulary import Vocabulary, paper_vocabulary
+from storage.models import Model
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import models as model_repository
 from storage.unit_of_work import after_commit
 
 
-def create_model(session: Session, registry: ModelRegistry, body: ModelCreate) -> ModelRuntime:
-    """A new model with K = 1 and the vocabulary's concepts as its first words; registered on commit."""
+class CreatedModel(NamedTuple):
+    model: ModelRuntime
+    replayed: bool
+    """True when an Idempotency-Key's earlier creation is answered again (nothing new was made)."""
+
+
+def create_model(
+    session: Session, registry: ModelRegistry, body: ModelCreate, idempotency_key: str | None = None
+) -> CreatedModel:
+    """A new model with K = 1 and the vocabulary's concepts as its first words; registered on commit.
+
+    ``idempotency_key``: a retry of a creation that may have been stored (a 503 that says so, a
+    lost answer) with the same key and body answers the model that creation made, as it is now;
+    with another body, 422 ``idempotency_key_reused``. Two creations with one key racing on two
+    processes meet at the key's unique index: the later one's insert is undone (a savepoint) and
+    it answers the earlier one's model."""
+    request_hash = None if idempotency_key is None else hashlib.sha256(body.model_dump_json().encode()).digest()
+    if idempotency_key is not None:
+        stored = model_repository.find_by_idempotency_key(session, idempotency_key)
+        if stored is not None:
+            return _replayed(registry, idempotency_key, request_hash, stored)
     vocabulary = _vocabulary(body.vocabulary)
     try:
         settings = Hyperparameters.from_dict(body.hyperparameters.model_dump())
     except InvalidInputError as error:
         raise InvalidInput(f"hyperparameters.{error.field}", error.problem) from None
-    hyperparameters = settings.to_dict()
     incremental_lda = IncrementalLDA(vocabulary.concepts, seed=body.seed, hyperparameters=settings)
+    if idempotency_key is None:
+        row = _add_model(session, body, vocabulary, settings, incremental_lda, None, None)
+    else:
+        try:
+            with session.begin_nested():
+                row = _add_model(session, body, vocabulary, settings, incremental_lda, idempotency_key, request_hash)
+        except IntegrityError:
+            stored = model_repository.find_by_idempotency_key(session, idempotency_key)
+            if stored is None:  # another constraint: not a race on the key
+                raise
+            return _replayed(registry, idempotency_key, request_hash, stored)
+    writer = ModelWriter(row.id, FittedPerception(Perception(vocabulary)), incremental_lda, list(vocabulary.kinds), 0)
+    model = ModelRuntime.from_row(row, writer)
+    after_commit(session, lambda: registry.add(model))
+    return CreatedModel(model, replayed=False)
+
+
+def _add_model(
+    session: Session,
+    body: ModelCreate,
+    vocabulary: Vocabulary,
+    settings: Hyperparameters,
+    incremental_lda: IncrementalLDA,
+    idempotency_key: str | None,
+    request_hash: bytes | None,
+) -> Model:
     row = model_repository.add_model(
         session,
         model_id=uuid.uuid4().hex,
         name=body.name,
         seed=body.seed,
         sigma=body.sigma,
-        hyperparameters=hyperparameters,
+        hyperparameters=settings.to_dict(),
         vocabulary=vocabulary.to_dict(),
+        idempotency_key=idempotency_key,
+        request_hash=request_hash,
     )
     lda_repository.create_state(
         session,
@@ -45,10 +95,16 @@ def create_model(session: Session, registry: ModelRegistry, body: ModelCreate) -
         state={"rng_state": jsonable(incremental_lda.to_state().rng_state)},
         words=[(i, name, vocabulary.kind(name)) for i, name in enumerate(vocabulary.concepts)],
     )
-    writer = ModelWriter(row.id, FittedPerception(Perception(vocabulary)), incremental_lda, list(vocabulary.kinds), 0)
-    model = ModelRuntime.from_row(row, writer)
-    after_commit(session, lambda: registry.add(model))
-    return model
+    return row
+
+
+def _replayed(
+    registry: ModelRegistry, idempotency_key: str, request_hash: bytes | None, stored: tuple[str, bytes | None]
+) -> CreatedModel:
+    model_id, stored_hash = stored
+    if stored_hash != request_hash:
+        raise IdempotencyKeyReused(idempotency_key)
+    return CreatedModel(registry.resolve(model_id), replayed=True)
 
 
 def _vocabulary(body: VocabularySchema | None) -> Vocabulary:

@@ -21,9 +21,18 @@ def add_model(
     sigma: float,
     hyperparameters: dict[str, Any],
     vocabulary: dict[str, Any],
+    idempotency_key: str | None = None,
+    request_hash: bytes | None = None,
 ) -> Model:
     model = Model(
-        id=model_id, name=name, seed=seed, sigma=sigma, hyperparameters=hyperparameters, vocabulary=vocabulary
+        id=model_id,
+        name=name,
+        seed=seed,
+        sigma=sigma,
+        hyperparameters=hyperparameters,
+        vocabulary=vocabulary,
+        idempotency_key=idempotency_key,
+        request_hash=request_hash,
     )
     session.add(model)
     session.flush()
@@ -32,6 +41,12 @@ def add_model(
 
 def get_model(session: Session, model_id: str) -> Model | None:
     return session.get(Model, model_id)
+
+
+def find_by_idempotency_key(session: Session, idempotency_key: str) -> tuple[str, bytes | None] | None:
+    """(id, request digest) of the model created under ``idempotency_key``, or None."""
+    row = session.execute(select(Model.id, Model.request_hash).where(Model.idempotency_key == idempotency_key)).first()
+    return None if row is None else (row.id, None if row.request_hash is None else bytes(row.request_hash))
 
 
 def list_models(session: Session) -> Sequence[Model]:

@@ -36,7 +36,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from app.schemas.common import UNION_TAGS, ErrorRead
 from core.errors import InvalidInputError
 from storage.database import LOCK_NOT_AVAILABLE
-from storage.unit_of_work import commit_outcome_unknown, write_deadline_passed
+from storage.unit_of_work import commit_outcome_unknown, deadline_that_passed
 
 
 class ContextwebError(Exception):
@@ -363,11 +363,11 @@ async def _storage_error(_request: Request, exc: Exception) -> JSONResponse:
 
 
 def storage_failure_reason(exc: BaseException) -> str:
-    """A short, key-free description of a database failure (the driver's first line), or the write
+    """A short, key-free description of a database failure (the driver's first line), or the
     deadline that cut the connection of a database that stopped answering."""
-    deadline = write_deadline_passed(exc)
+    deadline = deadline_that_passed(exc)
     if deadline is not None:
-        return f"the database did not answer within the write deadline of {deadline:g} s (CONTEXTWEB_WRITE_DEADLINE_SECONDS)"
+        return f"the database did not answer within {deadline}"
     original = getattr(exc, "orig", None) or exc
     first_line = (str(original).strip().splitlines() or [""])[0][:200]
     return f"{type(original).__name__}: {first_line}" if first_line else type(original).__name__

@@ -45,7 +45,7 @@ from core.errors import InvalidInputError
 from core.planning import BehaviourEffects, Workspace, learn_effects
 from core.prototypes.prototypes import PrototypeSet
 from core.vocabulary import Vocabulary
-from storage.database import snapshot, write_turn
+from storage.database import snapshot, with_deadline, write_turn
 from storage.models import HYPERPARAMETERS_VERSION, Model, TrainingObject
 from storage.repositories import feed as feed_repository
 from storage.repositories import incremental_lda as lda_repository
@@ -56,6 +56,10 @@ logger = logging.getLogger("contextweb")
 
 #: Seconds between two reload attempts of an unavailable model while the database fails.
 RELOAD_BACKOFF_SECONDS = 1.0
+VERSION_CHECK_DEADLINE_SECONDS = 5.0
+"""PostgreSQL: how long a request's check of a model's stored version (one primary-key read, which
+waits for no lock) may take before its connection is cut and the request answered 503: a
+database that stopped answering (storage/deadlines.py), not one that is slow."""
 #: A model whose stored state failed its check is loaded again as soon as its stored version moves
 #: (``contextweb models repair`` moves it), and otherwise after this many seconds, doubling after
 #: each check that fails again up to :data:`FAILED_CHECK_RECHECK_MAX_SECONDS`: rows mended by hand,
@@ -651,6 +655,7 @@ class ModelRegistry:
         self._models: dict[str, ModelRuntime] = {}
         self._lock = threading.Lock()
         self._read_sessions = read_sessions
+        self._version_sessions = with_deadline(read_sessions, VERSION_CHECK_DEADLINE_SECONDS)
 
     def __len__(self) -> int:
         return len(self._models)
@@ -694,7 +699,7 @@ class ModelRegistry:
         """The model ``model_id`` as stored now: loaded if another process created it, caught up if
         another process wrote to it; 404 if it does not exist, 503 if it cannot serve. Costs one
         primary-key read when memory is current (read-your-writes across processes)."""
-        with _storage_errors(), self._snapshot() as session:
+        with _storage_errors(), snapshot(self._version_sessions) as session:
             version = lda_repository.stored_version(session, model_id)
         model = self._models.get(model_id)
         if version is None:
@@ -772,7 +777,7 @@ class ModelRegistry:
     def synchronise(self) -> list[ModelRuntime]:
         """Every stored model, as stored now (a listing): new ones loaded, deleted ones forgotten, the
         others caught up; one query when nothing changed. Models that cannot serve stay listed."""
-        with _storage_errors(), self._snapshot() as session:
+        with _storage_errors(), snapshot(self._version_sessions) as session:
             versions = lda_repository.stored_versions(session)
         for model_id in set(self._models) - set(versions):
             self.forget(self._models[model_id].writer)

@@ -32,8 +32,8 @@ from sqlalchemy.orm import Session, sessionmaker
 from sqlalchemy.pool import Pool
 from sqlalchemy.types import TypeEngine
 
-from storage.deadlines import WRITE_DEADLINES
-from storage.unit_of_work import commit_sent, deadline_passed
+from storage.deadlines import DEADLINES
+from storage.unit_of_work import commit_sent, deadline_passed, mark_failure
 from storage.write_turns import WriteTurn
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
@@ -43,7 +43,8 @@ SQLITE_BUSY_TIMEOUT_MS = 5_000
 _WRITE_OPTION = "contextweb_write"
 _LOCK_WAIT_OPTION = "contextweb_lock_wait_ms"
 _DRIVER_OF_TRANSACTION = "contextweb_driver"
-_DEADLINE_TOKEN = "contextweb_write_deadline"
+_DEADLINE_TOKEN = "contextweb_deadline"
+_DEADLINE_OPTION = "contextweb_deadline_seconds"
 
 
 def is_sqlite(url: str) -> bool:
@@ -119,26 +120,35 @@ _WRITE_DEADLINE_SECONDS: weakref.WeakKeyDictionary[Pool, float] = weakref.WeakKe
 
 
 @event.listens_for(Session, "after_begin")
-def _arm_write_deadline(session: Session, _transaction: Any, connection: Connection) -> None:
-    """A write transaction on an engine with a write deadline: its connection is cut once the deadline
-    passes (storage/deadlines.py), counted from its ``BEGIN``. The deadline is the transaction's, not a
-    statement's: a write's statements are milliseconds, and its one long wait, for a model's lock
-    elsewhere, ends at ``lock_timeout`` (10 s), so the deadline only ends a database that stopped
-    answering. Reads have none: a model's first load may rightly take longer."""
-    seconds = _WRITE_DEADLINE_SECONDS.get(connection.engine.pool)
-    if seconds is None or not connection.get_execution_options().get(_WRITE_OPTION, False):
+def _arm_deadline(session: Session, _transaction: Any, connection: Connection) -> None:
+    """A PostgreSQL transaction with a deadline has its connection cut once the deadline passes
+    (storage/deadlines.py), counted from its ``BEGIN``: a write on an engine with a write deadline,
+    or a read on sessions made by :func:`with_deadline`.
+
+    A write's deadline is the transaction's, not a statement's: its statements are milliseconds,
+    and its one long wait, for a model's lock elsewhere, ends at ``lock_timeout`` (10 s), so the
+    deadline only ends a database that stopped answering. Other reads have none: a model's first
+    load may rightly take longer."""
+    options = connection.get_execution_options()
+    seconds = options.get(_DEADLINE_OPTION)
+    what = "the deadline"
+    if seconds is None and options.get(_WRITE_OPTION, False):
+        seconds = _WRITE_DEADLINE_SECONDS.get(connection.engine.pool)
+        what = "the write deadline"
+    if seconds is None or connection.dialect.name != "postgresql":
         return
     driver = connection.connection.driver_connection
     assert driver is not None  # a connection just begun on is not invalidated
-    session.info[_DEADLINE_TOKEN] = WRITE_DEADLINES.arm(
-        driver.fileno(), seconds, lambda: deadline_passed(session, seconds)
+    description = f"{what} of {seconds:g} s"
+    session.info[_DEADLINE_TOKEN] = DEADLINES.arm(
+        driver.fileno(), seconds, lambda: deadline_passed(session, description)
     )
 
 
 @event.listens_for(Session, "after_transaction_end")
-def _disarm_write_deadline(session: Session, transaction: Any) -> None:
+def _disarm_deadline(session: Session, transaction: Any) -> None:
     if transaction.parent is None and _DEADLINE_TOKEN in session.info:
-        WRITE_DEADLINES.disarm(session.info.pop(_DEADLINE_TOKEN))
+        DEADLINES.disarm(session.info.pop(_DEADLINE_TOKEN))
 
 
 @contextmanager
@@ -391,10 +401,15 @@ def snapshot(sessions: sessionmaker[Session]) -> Iterator[Session]:
     REPEATABLE READ (one snapshot for the whole transaction); on SQLite a WAL read transaction is
     one snapshot from its first read on."""
     with sessions() as session:
-        if session.get_bind().dialect.name == "postgresql":
-            session.connection(execution_options={"isolation_level": "REPEATABLE READ", "postgresql_readonly": True})
         try:
+            if session.get_bind().dialect.name == "postgresql":
+                session.connection(
+                    execution_options={"isolation_level": "REPEATABLE READ", "postgresql_readonly": True}
+                )
             yield session
+        except BaseException as error:
+            mark_failure(session, error)
+            raise
         finally:
             session.rollback()
 
@@ -403,6 +418,14 @@ def with_lock_wait(sessions: sessionmaker[Session], milliseconds: int) -> sessio
     """``sessions`` whose SQLite transactions wait at most ``milliseconds`` for the write lock instead
     of the busy timeout (the readiness probe must answer promptly); no effect on PostgreSQL."""
     bind = sessions.kw["bind"].execution_options(**{_LOCK_WAIT_OPTION: milliseconds})
+    return sessionmaker(bind=bind, expire_on_commit=False, autoflush=False)
+
+
+def with_deadline(sessions: sessionmaker[Session], seconds: float) -> sessionmaker[Session]:
+    """``sessions`` whose PostgreSQL transactions are cut after ``seconds`` (:func:`_arm_deadline`):
+    for the short reads of every request (a model's version), which a frozen database would
+    otherwise hold for as long as the freeze. No effect on SQLite."""
+    bind = sessions.kw["bind"].execution_options(**{_DEADLINE_OPTION: seconds})
     return sessionmaker(bind=bind, expire_on_commit=False, autoflush=False)
 
 

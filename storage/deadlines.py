@@ -1,4 +1,4 @@
-"""A deadline on PostgreSQL write transactions: a database that stops answering ends the write.
+"""Deadlines on PostgreSQL transactions: a database that stops answering ends the request.
 
 A PostgreSQL server that freezes but keeps its connections (its processes stopped, a stalled VM
 or storage) leaves every write already sent waiting as long as the freeze: the kernel still
@@ -7,8 +7,9 @@ side time-out (``statement_timeout``) cannot run in a frozen server. libpq has n
 time-out for an answer on an open connection, and psycopg's synchronous calls cannot be
 interrupted from another thread (``cancel()`` asks the frozen server itself).
 
-So one watchdog thread per process cuts the connection of a write transaction that has run past
-its deadline: ``shutdown(2)`` of its socket. The thread blocked in libpq then fails at once with
+So one watchdog thread per process cuts the connection of a transaction that has run past its
+deadline (a write's, ``CONTEXTWEB_WRITE_DEADLINE_SECONDS``; a request's version check, 5 s):
+``shutdown(2)`` of its socket. The thread blocked in libpq then fails at once with
 "server closed the connection unexpectedly", which is a lost connection like any other
 (storage/unit_of_work.py): the pool drops the connection, and the write is a 503 that says whether
 its ``COMMIT`` had been sent. The server, once it runs again, reads the end of the stream and rolls
@@ -60,7 +61,7 @@ class SocketDeadlines:
             self._next_token += 1
             self._armed[token] = armed
             if self._thread is None or not self._thread.is_alive():
-                self._thread = threading.Thread(target=self._watch, name="contextweb-write-deadlines", daemon=True)
+                self._thread = threading.Thread(target=self._watch, name="contextweb-deadlines", daemon=True)
                 self._thread.start()
             elif armed.deadline < self._wakes_at:  # the common case, a later deadline, wakes nobody
                 self._condition.notify()
@@ -90,7 +91,7 @@ class SocketDeadlines:
         try:
             armed.on_expiry()
         except Exception:  # the cut must happen whatever the callback does
-            logger.exception("a write deadline's callback failed")
+            logger.exception("a deadline's callback failed")
         cut = socket.socket(fileno=armed.socket_copy)
         try:
             cut.shutdown(socket.SHUT_RDWR)
@@ -100,5 +101,5 @@ class SocketDeadlines:
             cut.close()
 
 
-#: The process's watchdog (one thread for every engine's write deadlines).
-WRITE_DEADLINES = SocketDeadlines()
+#: The process's watchdog (one thread for every engine's deadlines).
+DEADLINES = SocketDeadlines()

@@ -16,7 +16,7 @@ from sqlalchemy.orm import Session, sessionmaker
 _AFTER_COMMIT = "contextweb_after_commit"
 _COMMIT_SENT = "contextweb_commit_sent"
 _OUTCOME_UNKNOWN = "contextweb_commit_outcome_unknown"
-_DEADLINE_PASSED = "contextweb_write_deadline_passed"
+_DEADLINE_PASSED = "contextweb_deadline_passed"
 
 
 def after_commit(session: Session, callback: Callable[[], None]) -> None:
@@ -38,15 +38,27 @@ def commit_outcome_unknown(error: BaseException) -> bool:
     return bool(getattr(error, _OUTCOME_UNKNOWN, False))
 
 
-def deadline_passed(session: Session, seconds: float) -> None:
-    """Mark ``session``'s connection as cut by its write deadline of ``seconds`` (storage/deadlines.py)."""
-    session.info[_DEADLINE_PASSED] = seconds
+def deadline_passed(session: Session, deadline: str) -> None:
+    """Mark ``session``'s connection as cut by its ``deadline`` ("the write deadline of 20 s";
+    storage/deadlines.py)."""
+    session.info[_DEADLINE_PASSED] = deadline
 
 
-def write_deadline_passed(error: BaseException) -> float | None:
-    """The write deadline (seconds) whose cut of the connection made ``error`` (marked by
-    :func:`unit_of_work`), or None: the database stopped answering the write."""
+def deadline_that_passed(error: BaseException) -> str | None:
+    """The deadline whose cut of the connection made ``error`` (marked by :func:`mark_failure`),
+    or None: the database stopped answering."""
     return getattr(error, _DEADLINE_PASSED, None)
+
+
+def mark_failure(session: Session, error: BaseException) -> None:
+    """Mark on ``error``, when it lost ``session``'s connection, what :func:`commit_outcome_unknown`
+    and :func:`deadline_that_passed` read: whether its ``COMMIT`` had been sent, and the deadline
+    that cut it."""
+    if isinstance(error, DBAPIError) and error.connection_invalidated:
+        if session.info.get(_COMMIT_SENT):
+            setattr(error, _OUTCOME_UNKNOWN, True)
+        if _DEADLINE_PASSED in session.info:
+            setattr(error, _DEADLINE_PASSED, session.info[_DEADLINE_PASSED])
 
 
 @contextmanager
@@ -58,11 +70,7 @@ def unit_of_work(sessions: sessionmaker[Session]) -> Iterator[Session]:
             commit_sent(session)
             session.commit()
         except BaseException as error:
-            if isinstance(error, DBAPIError) and error.connection_invalidated:
-                if session.info.get(_COMMIT_SENT):
-                    setattr(error, _OUTCOME_UNKNOWN, True)
-                if _DEADLINE_PASSED in session.info:
-                    setattr(error, _DEADLINE_PASSED, session.info[_DEADLINE_PASSED])
+            mark_failure(session, error)
             session.rollback()
             raise
         for callback in session.info.pop(_AFTER_COMMIT, []):

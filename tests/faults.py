@@ -183,6 +183,20 @@ def backend_when(url: str, condition: str, seconds: float = 20.0) -> tuple[int, 
     raise AssertionError(f"no backend of the test database came to: {condition}")
 
 
+def database_backends(url: str) -> list[int]:
+    """The pids of every backend connected to database ``url`` now."""
+    admin = postgres_admin_engine()
+    try:
+        with admin.connect() as connection:
+            rows = connection.execute(
+                text("SELECT pid FROM pg_stat_activity WHERE datname = :name AND pid <> pg_backend_pid()"),
+                {"name": database_name(url)},
+            ).all()
+    finally:
+        admin.dispose()
+    return [int(row.pid) for row in rows]
+
+
 def end_backend(pid: int) -> None:
     """``pg_terminate_backend(pid)``: the backend's client finds its connection lost."""
     admin = postgres_admin_engine()

@@ -1,4 +1,4 @@
-"""A write to a database that stops answering ends at the write deadline (PostgreSQL, a real server).
+"""A request to a database that stops answering ends at its deadline (PostgreSQL, a real server).
 
 The server's backend is frozen (SIGSTOP, as in a stalled VM): its connection stays open and the
 kernel acknowledges what the server sends, so without a deadline the write waits as long as the
@@ -15,12 +15,14 @@ freeze. With ``CONTEXTWEB_WRITE_DEADLINE_SECONDS`` the connection is cut at the 
 from __future__ import annotations
 
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 import httpx
 import psycopg
 import pytest
 
+from app.registry import VERSION_CHECK_DEADLINE_SECONDS
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
 from tests.faults import (
     SLOW_COMMIT,
@@ -28,6 +30,7 @@ from tests.faults import (
     answer_while,
     backend_when,
     create_model,
+    database_backends,
     fresh_postgres_database,
     frozen_backend,
     model_invariants,
@@ -144,3 +147,34 @@ def backend_gone(url: str, pid: int, seconds: float = 10.0) -> None:
             return
         time.sleep(0.05)
     raise AssertionError(f"backend {pid} still runs {seconds} s after its thaw")
+
+
+def test_a_frozen_database_ends_a_reads_version_check_at_its_deadline(tmp_path: Path) -> None:
+    """Every backend of the database frozen, the pooled connections' included: a read's check of
+    the model's version (one primary-key read) is cut at its 5 s deadline and answered 503, where
+    it would otherwise wait for the thaw; after the thaw the model reads again."""
+    with fresh_postgres_database("contextweb_read_deadline") as url, running_server(url, tmp_path) as server:
+        model_id = create_model(server.base_url, FAST_HYPERPARAMETERS, name="read-deadline")
+        with httpx.Client(base_url=server.base_url, timeout=30) as client:
+            for _ in range(3):  # a few pooled connections, all of whose backends are frozen below
+                assert client.get(f"/v1/models/{model_id}").status_code == 200
+        pids = database_backends(url)
+        assert pids, "the server holds no connection to its database"
+
+        def freeze_every_backend() -> list[int]:
+            with ExitStack() as frozen:
+                for pid in pids:
+                    frozen.enter_context(frozen_backend(pid))
+                time.sleep(FREEZE_SECONDS)
+            return pids
+
+        answer, _, seconds = answer_while(
+            server.base_url, lambda client: client.get(f"/v1/models/{model_id}"), freeze_every_backend
+        )
+        assert answer.status_code == 503 and answer.headers["retry-after"], answer.text
+        assert answer.json()["error"] == "storage_unavailable", answer.text
+        deadline = VERSION_CHECK_DEADLINE_SECONDS
+        assert f"did not answer within the deadline of {deadline:g} s" in answer.json()["detail"], answer.text
+        assert deadline - 0.05 <= seconds < deadline + 4.0, seconds
+        with httpx.Client(base_url=server.base_url, timeout=30) as client:
+            assert client.get(f"/v1/models/{model_id}").status_code == 200

@@ -231,6 +231,33 @@ def at_once(calls: Sequence[Callable[[], T]]) -> list[T]:
         return list(pool.map(run, calls))
 
 
+def model_with_keyed_posts(
+    base_url: str, bodies: Sequence[dict[str, Any]], *, name: str, posted: int
+) -> tuple[str, list[KeyedPost]]:
+    """A new model (``FAST_HYPERPARAMETERS``) and one :class:`KeyedPost` per body, keys ``k0``, ``k1``
+    …, of which the first ``posted`` are posted once each (each must be a 201)."""
+    from tests.conftest import FAST_HYPERPARAMETERS
+
+    model_id = create_model(base_url, FAST_HYPERPARAMETERS, name=name)
+    posts = [KeyedPost(key=f"k{index}", body=body) for index, body in enumerate(bodies)]
+    with httpx.Client(base_url=base_url, timeout=30) as client:
+        for post in posts[:posted]:
+            answer = post_keyed_once(client, model_id, post)
+            assert answer.status_code == 201, answer.text
+    return model_id, posts
+
+
+@contextmanager
+def holding_model_row(url: str, model_id: str) -> Iterator[Any]:
+    """An outside transaction holding the model's state row (``FOR UPDATE``), which every write to
+    the model waits for; the open psycopg connection (commit it to let them through)."""
+    import psycopg
+
+    with psycopg.connect(url.replace("postgresql+psycopg://", "postgresql://")) as outside:
+        outside.execute("SELECT 1 FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (model_id,))
+        yield outside
+
+
 def answer_while(
     base_url: str, request: Callable[[httpx.Client], httpx.Response], fault: Callable[[], T]
 ) -> tuple[httpx.Response, T, float]:

@@ -17,16 +17,16 @@ import httpx
 import psycopg
 import pytest
 
-from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
+from tests.conftest import concept_scenes
 from tests.faults import (
     SLOW_COMMIT,
-    KeyedPost,
     answer_while,
     backend_when,
-    create_model,
     end_backend,
     fresh_postgres_database,
+    holding_model_row,
     model_invariants,
+    model_with_keyed_posts,
     post_keyed_once,
 )
 from tests.servers import running_server
@@ -44,16 +44,10 @@ def _end_backend_when(url: str, condition: str) -> str:
 def test_a_503_says_whether_the_commit_was_sent(tmp_path: Path) -> None:
     bodies = concept_scenes(8, seed=3)
     with fresh_postgres_database("contextweb_commit") as url, running_server(url, tmp_path) as server:
-        model_id = create_model(server.base_url, FAST_HYPERPARAMETERS, name="commit")
-        posts = [KeyedPost(key=f"k{index}", body=body) for index, body in enumerate(bodies)]
-        with httpx.Client(base_url=server.base_url, timeout=30) as client:
-            for post in posts[:4]:
-                assert post_keyed_once(client, model_id, post).status_code == 201
-
+        model_id, posts = model_with_keyed_posts(server.base_url, bodies, name="commit", posted=4)
         libpq_url = url.replace("postgresql+psycopg://", "postgresql://")
         # Before the commit: the write waits for the model's row, held by an outside transaction.
-        with psycopg.connect(libpq_url) as outside:
-            outside.execute("SELECT 1 FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (model_id,))
+        with holding_model_row(url, model_id):
             answer, query, _ = answer_while(
                 server.base_url,
                 lambda client: post_keyed_once(client, model_id, posts[4]),

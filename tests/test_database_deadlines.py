@@ -26,14 +26,15 @@ from app.registry import VERSION_CHECK_DEADLINE_SECONDS
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
 from tests.faults import (
     SLOW_COMMIT,
-    KeyedPost,
     answer_while,
     backend_when,
     create_model,
     database_backends,
     fresh_postgres_database,
     frozen_backend,
+    holding_model_row,
     model_invariants,
+    model_with_keyed_posts,
     post_keyed_once,
 )
 from tests.servers import running_server
@@ -57,20 +58,15 @@ def _assert_cut_at_the_deadline(answer: httpx.Response, seconds: float, outcome:
 
 def test_a_frozen_database_ends_a_write_at_its_deadline_and_nothing_is_doubled(tmp_path: Path) -> None:
     bodies = concept_scenes(8, seed=11)
-    posts = [KeyedPost(key=f"k{index}", body=body) for index, body in enumerate(bodies)]
     with (
         fresh_postgres_database("contextweb_deadline") as url,
         running_server(url, tmp_path, env={"CONTEXTWEB_WRITE_DEADLINE_SECONDS": f"{DEADLINE_SECONDS:g}"}) as server,
     ):
-        model_id = create_model(server.base_url, FAST_HYPERPARAMETERS, name="deadline")
-        with httpx.Client(base_url=server.base_url, timeout=30) as client:
-            for post in posts[:4]:
-                assert post_keyed_once(client, model_id, post).status_code == 201
+        model_id, posts = model_with_keyed_posts(server.base_url, bodies, name="deadline", posted=4)
         libpq_url = url.replace("postgresql+psycopg://", "postgresql://")
 
         # Before the commit: frozen while it waits for the model's row, held by an outside transaction.
-        with psycopg.connect(libpq_url) as outside:
-            outside.execute("SELECT 1 FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (model_id,))
+        with holding_model_row(url, model_id) as outside:
 
             def freeze_the_waiting_write() -> str:
                 pid, query = backend_when(url, "wait_event_type = 'Lock'")

@@ -258,18 +258,30 @@ def holding_model_row(url: str, model_id: str) -> Iterator[Any]:
         yield outside
 
 
+@dataclass(frozen=True)
+class Timing:
+    """When a request started and when its answer came (``time.monotonic()``)."""
+
+    started: float
+    ended: float
+
+    @property
+    def seconds(self) -> float:
+        return self.ended - self.started
+
+
 def answer_while(
     base_url: str, request: Callable[[httpx.Client], httpx.Response], fault: Callable[[], T]
-) -> tuple[httpx.Response, T, float]:
+) -> tuple[httpx.Response, T, Timing]:
     """``request`` on a thread while ``fault()`` runs here: the answer, what ``fault`` returned,
-    and the seconds the request took."""
-    answers: list[tuple[httpx.Response, float]] = []
+    and when the request started and was answered."""
+    answers: list[tuple[httpx.Response, Timing]] = []
 
     def run() -> None:
         with httpx.Client(base_url=base_url, timeout=60) as client:
             started = time.monotonic()
             answer = request(client)
-            answers.append((answer, time.monotonic() - started))
+            answers.append((answer, Timing(started, time.monotonic())))
 
     thread = threading.Thread(target=run, daemon=True)
     thread.start()

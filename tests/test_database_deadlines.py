@@ -15,6 +15,7 @@ freeze. With ``CONTEXTWEB_WRITE_DEADLINE_SECONDS`` the connection is cut at the 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
 
@@ -26,6 +27,7 @@ from app.registry import VERSION_CHECK_DEADLINE_SECONDS
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
 from tests.faults import (
     SLOW_COMMIT,
+    Timing,
     answer_while,
     backend_when,
     create_model,
@@ -41,19 +43,33 @@ from tests.servers import running_server
 
 pytestmark = pytest.mark.postgres
 
-DEADLINE_SECONDS = 4.0
-FREEZE_SECONDS = 12.0  # well past the deadline: an answer before the thaw can only be the deadline's
+DEADLINE_SECONDS = 3.0
+FREEZE_MARGIN_SECONDS = 3.0  # a freeze this much longer than the deadline: the answer must come before the thaw
 COMMIT_SLEEP_SECONDS = 1.0  # a commit that would end well within the deadline, but for the freeze
 
 
-def _assert_cut_at_the_deadline(answer: httpx.Response, seconds: float, outcome: str) -> None:
+def _assert_cut_at_the_deadline(
+    answer: httpx.Response, timing: Timing, thawed_at: float, deadline: str, seconds: float, outcome: str = ""
+) -> None:
+    """A 503 naming ``deadline``, answered no sooner than ``seconds`` after the request (the deadline
+    runs from the transaction's BEGIN, which follows the request's arrival) and before the thaw."""
     assert answer.status_code == 503 and answer.headers["retry-after"], answer.text
     body = answer.json()
     assert body["error"] == "storage_unavailable", body
-    assert f"did not answer within the write deadline of {DEADLINE_SECONDS:g} s" in body["detail"], body
+    assert f"did not answer within {deadline} of {seconds:g} s" in body["detail"], body
     assert outcome in body["detail"], body
-    # The deadline runs from the write transaction's BEGIN, which follows the request's arrival.
-    assert DEADLINE_SECONDS - 0.05 <= seconds < DEADLINE_SECONDS + 4.0, seconds
+    assert timing.seconds >= seconds - 0.05, timing
+    assert timing.ended < thawed_at, (timing, thawed_at)
+
+
+def _frozen_for(pids: list[int], seconds: float, before_sleep: Callable[[], object] = lambda: None) -> float:
+    """Freeze the backends ``pids`` for ``seconds``; the monotonic time of their thaw."""
+    with ExitStack() as frozen:
+        for pid in pids:
+            frozen.enter_context(frozen_backend(pid))
+        before_sleep()
+        time.sleep(seconds)
+        return time.monotonic()
 
 
 def test_a_frozen_database_ends_a_write_at_its_deadline_and_nothing_is_doubled(tmp_path: Path) -> None:
@@ -68,35 +84,36 @@ def test_a_frozen_database_ends_a_write_at_its_deadline_and_nothing_is_doubled(t
         # Before the commit: frozen while it waits for the model's row, held by an outside transaction.
         with holding_model_row(url, model_id) as outside:
 
-            def freeze_the_waiting_write() -> str:
+            def freeze_the_waiting_write() -> tuple[str, float]:
                 pid, query = backend_when(url, "wait_event_type = 'Lock'")
-                with frozen_backend(pid):
-                    outside.commit()  # the lock is free, but the frozen backend cannot take it
-                    time.sleep(FREEZE_SECONDS)
-                return query
+                # The lock is let go at once, but the frozen backend cannot take it.
+                return query, _frozen_for([pid], DEADLINE_SECONDS + FREEZE_MARGIN_SECONDS, outside.commit)
 
-            answer, query, seconds = answer_while(
+            answer, (query, thawed_at), timing = answer_while(
                 server.base_url, lambda client: post_keyed_once(client, model_id, posts[4]), freeze_the_waiting_write
             )
         assert "FOR UPDATE" in query.upper(), query
-        _assert_cut_at_the_deadline(answer, seconds, "nothing was changed")
+        _assert_cut_at_the_deadline(
+            answer, timing, thawed_at, "the write deadline", DEADLINE_SECONDS, "nothing was changed"
+        )
 
         # During the commit: frozen while a deferred trigger sleeps in its COMMIT.
         with psycopg.connect(libpq_url, autocommit=True) as admin:
             admin.execute(SLOW_COMMIT.format(table="scene", seconds=COMMIT_SLEEP_SECONDS))
 
-        def freeze_the_commit() -> str:
+        def freeze_the_commit() -> tuple[str, float]:
             pid, query = backend_when(url, "wait_event = 'PgSleep'")
-            with frozen_backend(pid):
-                time.sleep(FREEZE_SECONDS)
+            thawed_at = _frozen_for([pid], DEADLINE_SECONDS + FREEZE_MARGIN_SECONDS)
             backend_gone(url, pid)
-            return query
+            return query, thawed_at
 
-        answer, query, seconds = answer_while(
+        answer, (query, thawed_at), timing = answer_while(
             server.base_url, lambda client: post_keyed_once(client, model_id, posts[5]), freeze_the_commit
         )
         assert query.strip().upper().startswith("COMMIT"), query
-        _assert_cut_at_the_deadline(answer, seconds, "may have stored the write")
+        _assert_cut_at_the_deadline(
+            answer, timing, thawed_at, "the write deadline", DEADLINE_SECONDS, "may have stored the write"
+        )
         with psycopg.connect(libpq_url, autocommit=True) as admin:
             admin.execute("DROP TRIGGER slow_commit ON scene")
 
@@ -117,13 +134,15 @@ def test_a_frozen_database_ends_a_write_at_its_deadline_and_nothing_is_doubled(t
         with psycopg.connect(libpq_url, autocommit=True) as admin:
             admin.execute(SLOW_COMMIT.format(table="model", seconds=COMMIT_SLEEP_SECONDS))
         creation = {"name": "in-doubt", "hyperparameters": FAST_HYPERPARAMETERS}
-        answer, query, seconds = answer_while(
+        answer, (query, thawed_at), timing = answer_while(
             server.base_url,
             lambda client: client.post("/v1/models", json=creation, headers={"Idempotency-Key": "create-in-doubt"}),
             freeze_the_commit,
         )
         assert query.strip().upper().startswith("COMMIT"), query
-        _assert_cut_at_the_deadline(answer, seconds, "may have stored the write")
+        _assert_cut_at_the_deadline(
+            answer, timing, thawed_at, "the write deadline", DEADLINE_SECONDS, "may have stored the write"
+        )
         with psycopg.connect(libpq_url, autocommit=True) as admin:
             admin.execute("DROP TRIGGER slow_commit ON model")
         with httpx.Client(base_url=server.base_url, timeout=30) as client:
@@ -157,20 +176,14 @@ def test_a_frozen_database_ends_a_reads_version_check_at_its_deadline(tmp_path: 
         pids = database_backends(url)
         assert pids, "the server holds no connection to its database"
 
-        def freeze_every_backend() -> list[int]:
-            with ExitStack() as frozen:
-                for pid in pids:
-                    frozen.enter_context(frozen_backend(pid))
-                time.sleep(FREEZE_SECONDS)
-            return pids
-
-        answer, _, seconds = answer_while(
-            server.base_url, lambda client: client.get(f"/v1/models/{model_id}"), freeze_every_backend
-        )
-        assert answer.status_code == 503 and answer.headers["retry-after"], answer.text
-        assert answer.json()["error"] == "storage_unavailable", answer.text
         deadline = VERSION_CHECK_DEADLINE_SECONDS
-        assert f"did not answer within the deadline of {deadline:g} s" in answer.json()["detail"], answer.text
-        assert deadline - 0.05 <= seconds < deadline + 4.0, seconds
+        with ExitStack() as frozen, httpx.Client(base_url=server.base_url, timeout=deadline + 5) as client:
+            for pid in pids:
+                frozen.enter_context(frozen_backend(pid))
+            started = time.monotonic()  # frozen first: without the deadline this GET times out
+            answer = client.get(f"/v1/models/{model_id}")
+            timing = Timing(started, time.monotonic())
+            thawed_at = float("inf")  # after the answer, by construction
+        _assert_cut_at_the_deadline(answer, timing, thawed_at, "the deadline", deadline)
         with httpx.Client(base_url=server.base_url, timeout=30) as client:
             assert client.get(f"/v1/models/{model_id}").status_code == 200

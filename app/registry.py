@@ -203,6 +203,11 @@ class ModelWriter:
         """
         if self.deleted:
             raise ModelNotFound(self.id)
+        if self.unavailable is not None and time.monotonic() < self.reload_after:
+            # What the reload under the locks would answer, answered before waiting for them: the
+            # writes queued behind one that failed (a database that stopped answering: each would
+            # wait out its own deadline) fail fast until the reload's back-off has passed.
+            raise ModelUnavailable(self.id, self.unavailable, retry_after=1)
         holding = False
         try:
             with write_turn(write_sessions), unit_of_work(write_sessions) as session:

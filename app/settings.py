@@ -108,12 +108,12 @@ class Settings(BaseSettings):
         description="How long an SQLite write waits for the database's write lock; then a 503 `storage_busy`.",
     )
     write_deadline_seconds: float = Field(
-        20.0,
+        15.0,
         ge=1.0,
         le=600.0,
         description="PostgreSQL: how long a write transaction may run before its connection is cut and the write "
         "answered 503 `storage_unavailable` (a database that stopped answering). Longer than `lock_timeout` (10 s), "
-        "shorter than the clients' own time-outs (the bridge's is 30 s).",
+        "shorter than the clients' own time-outs (the bridge's is 30 s; 20 s is common).",
     )
 
     @field_validator("write_key", "read_key", mode="before")

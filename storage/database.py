@@ -336,11 +336,16 @@ class QueuedRows:
 
 def _as_sqlalchemy_error(connection: Connection, statement: str, parameters: Any, error: Any) -> StatementError:
     """A driver error as SQLAlchemy would raise it (``IntegrityError``, ``OperationalError`` …).
-    As in SQLAlchemy's own handling, an error that means the connection is lost invalidates it,
-    so the pool discards it and the session's rollback does not try to use it."""
+    As in SQLAlchemy's own handling (``Connection._handle_dbapi_exception``), an error that means
+    the connection is lost invalidates it, so that the session's rollback does not try to use it,
+    and invalidates the pool's older connections too, so that each is replaced at its next checkout:
+    they reach the same server, which has just been lost (restarted, partitioned, frozen). Without
+    that, the writes queued behind one cut by its deadline each took another frozen pooled
+    connection and waited out a deadline of its own (tests/test_database_deadlines.py)."""
     dialect = connection.dialect
     lost = dialect.is_disconnect(error, connection.connection.driver_connection, None)
     if lost and not connection.invalidated:
+        connection.engine.pool._invalidate(connection.connection, error)
         connection.invalidate(error)
     return DBAPIError.instance(
         statement, parameters, error, dialect.loaded_dbapi.Error, dialect=dialect, connection_invalidated=lost

@@ -125,6 +125,23 @@ def terminate_connections(admin: Engine, name: str) -> int:
 
 
 @contextmanager
+def connections_refused(name: str) -> Iterator[None]:
+    """Database ``name`` refuses new connections inside the block; open ones are left alone.
+    Allowed again in ``finally``, whatever happened."""
+    admin = postgres_admin_engine()
+    try:
+        with admin.connect() as connection:
+            connection.execute(text(f'ALTER DATABASE "{name}" ALLOW_CONNECTIONS false'))
+        try:
+            yield
+        finally:
+            with admin.connect() as connection:
+                connection.execute(text(f'ALTER DATABASE "{name}" ALLOW_CONNECTIONS true'))
+    finally:
+        admin.dispose()
+
+
+@contextmanager
 def postgres_outage(name: str) -> Iterator[None]:
     """Database ``name`` is unreachable inside the block: no new connection, every open one ended.
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from contextlib import ExitStack
+from functools import partial
 from pathlib import Path
 
 import httpx
@@ -27,11 +28,15 @@ from app.registry import VERSION_CHECK_DEADLINE_SECONDS
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
 from tests.faults import (
     SLOW_COMMIT,
+    KeyedPost,
     Timing,
     answer_while,
+    at_once,
     backend_when,
+    connections_refused,
     create_model,
     database_backends,
+    database_name,
     fresh_postgres_database,
     frozen_backend,
     holding_model_row,
@@ -187,3 +192,42 @@ def test_a_frozen_database_ends_a_reads_version_check_at_its_deadline(tmp_path: 
         _assert_cut_at_the_deadline(answer, timing, thawed_at, "the deadline", deadline)
         with httpx.Client(base_url=server.base_url, timeout=30) as client:
             assert client.get(f"/v1/models/{model_id}").status_code == 200
+
+
+def test_writes_queued_behind_one_cut_by_its_deadline_fail_fast(tmp_path: Path) -> None:
+    """The database frozen (every backend stopped) and refusing new connections: the first of four
+    writes posted at once to one model is cut at its deadline; the three queued behind it answer
+    503 at once (the lost connection invalidated the pool's others, so each tries a new connection,
+    refused) instead of each waiting out its own deadline on another frozen pooled connection."""
+    bodies = concept_scenes(12, seed=17)
+    with (
+        fresh_postgres_database("contextweb_queued_deadline") as url,
+        running_server(url, tmp_path, env={"CONTEXTWEB_WRITE_DEADLINE_SECONDS": f"{DEADLINE_SECONDS:g}"}) as server,
+        httpx.Client(base_url=server.base_url, timeout=60) as client,
+    ):
+        model_id, posts = model_with_keyed_posts(server.base_url, bodies, name="queued", posted=4)
+        for _ in range(3):  # several pooled connections, all frozen below
+            at_once([partial(client.get, f"/v1/models/{model_id}") for _ in range(6)])
+        pids = database_backends(url)
+        assert len(pids) >= 4, pids
+
+        def timed_post(post: KeyedPost) -> tuple[httpx.Response, float]:
+            started = time.monotonic()
+            with httpx.Client(base_url=server.base_url, timeout=60) as own:
+                answer = post_keyed_once(own, model_id, post)
+            return answer, time.monotonic() - started
+
+        with connections_refused(database_name(url)), ExitStack() as frozen:
+            for pid in pids:
+                frozen.enter_context(frozen_backend(pid))
+            answers = at_once([partial(timed_post, post) for post in posts[4:8]])
+        assert all(answer.status_code == 503 and answer.headers["retry-after"] for answer, _ in answers), [
+            answer.text for answer, _ in answers
+        ]
+        slowest = max(seconds for _, seconds in answers)
+        assert slowest < 2 * DEADLINE_SECONDS, [(answer.json()["error"], seconds) for answer, seconds in answers]
+
+        for post in posts[4:]:  # the database back: every retry stores its scene, once
+            assert post_keyed_once(client, model_id, post).status_code == 201
+        problems = model_invariants(url, [server.base_url], model_id, posts)
+        assert not problems, "\n".join(problems)

@@ -90,7 +90,7 @@ def create_database_engine(
 ) -> Engine:
     """An engine for ``url``; SQLite files get their folder created and the pragmas above; PostgreSQL
     connections the time-outs above, and with ``write_deadline_seconds`` a deadline on each write
-    transaction (:func:`_arm_write_deadline`; the server's is ``CONTEXTWEB_WRITE_DEADLINE_SECONDS``)."""
+    transaction (:func:`_arm_deadline`; the server's is ``CONTEXTWEB_WRITE_DEADLINE_SECONDS``)."""
     url = normalise_url(url)
     if not is_sqlite(url):
         engine = create_engine(

@@ -39,7 +39,7 @@ def commit_outcome_unknown(error: BaseException) -> bool:
 
 
 def deadline_passed(session: Session, deadline: str) -> None:
-    """Mark ``session``'s connection as cut by its ``deadline`` ("the write deadline of 20 s";
+    """Mark ``session``'s connection as cut by its ``deadline`` ("the write deadline of 15 s";
     storage/deadlines.py)."""
     session.info[_DEADLINE_PASSED] = deadline
 

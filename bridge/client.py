@@ -401,10 +401,21 @@ class Models(_Resource):
 class Training(_Resource):
     """``client.training``: labelled objects in, then a fit of prototypes, concept web and behaviour effects."""
 
-    def add_objects(self, model_id: str, objects: Sequence[TrainingObject]) -> TrainingBatchRead:
-        """Add one batch of labelled objects (the service caps a batch at 500 and a body at its byte limit)."""
+    def add_objects(
+        self, model_id: str, objects: Sequence[TrainingObject], *, idempotency_key: str | None = None
+    ) -> TrainingBatchRead:
+        """Add one batch of labelled objects (the service caps a batch at 500 and a body at its byte limit).
+
+        The batch carries an ``Idempotency-Key`` (``idempotency_key``, or a new UUID for this call),
+        so the transport retries it: a retry of a batch the service may have stored is answered as
+        that batch was, and never adds its objects twice."""
         body = TrainingBatch(objects=list(objects)).model_dump(mode="json", exclude_defaults=True)
-        data = self._client.request("POST", f"/v1/models/{model_id}/training-objects", json=body)
+        data = self._client.request(
+            "POST",
+            f"/v1/models/{model_id}/training-objects",
+            json=body,
+            idempotency_key=idempotency_key or uuid.uuid4().hex,
+        )
         return self._client._cast(TrainingBatchRead, data)
 
     def fit(self, model_id: str, *, method: str = "rgng", seed: int | None = None) -> FitRead:

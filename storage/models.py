@@ -276,6 +276,22 @@ class TrainingObject(Base):
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
 
 
+class TrainingBatch(Base):
+    """A batch of training objects posted with an Idempotency-Key (alembic 0010): its key, its
+    body's digest and the answer it got, so that a retry is answered again instead of adding the
+    objects twice. Batches posted without a key leave no row."""
+
+    __tablename__ = "training_batch"
+
+    model_id: Mapped[str] = mapped_column(_model_fk(), primary_key=True)
+    idempotency_key: Mapped[str] = mapped_column(String(200), primary_key=True)
+    request_hash: Mapped[bytes] = mapped_column(LargeBinary)
+    added: Mapped[int] = mapped_column(Integer)
+    training_object_count: Mapped[int] = mapped_column(Integer)
+    """The model's training objects once the batch was added: the answer as it was given."""
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+
 class ContextLabel(Base):
     """The name an operator gave a context; contexts keep their index as K grows (alembic 0004)."""
 

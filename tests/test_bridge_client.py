@@ -12,7 +12,7 @@ import pytest
 
 from bridge import Client, OfflineQueue, QueuedScene, RetryPolicy, SceneObject
 from bridge.errors import APIConnectionError, InvalidRequestError, ModelNotFoundError
-from bridge.models import SceneRead
+from bridge.models import ENTITY_SIZE, ObjectFeatures, SceneRead, TrainingObject
 
 FAST = RetryPolicy(max_retries=2, initial_delay=0.001, max_delay=0.002)
 PROJECT = Path(__file__).resolve().parents[1]
@@ -248,3 +248,23 @@ def test_a_model_creation_carries_a_key_so_a_503_that_may_have_stored_it_is_retr
     assert model.id == "model-0" and other.id == "model-1" and len(created) == 2
     keys = [request.headers["Idempotency-Key"] for request in requests]
     assert keys[0] == keys[1] != keys[2] and all(len(key) == 32 for key in keys), keys
+
+
+def test_a_training_batch_carries_a_key_so_an_answer_lost_is_retried_with_it() -> None:
+    requests: list[httpx.Request] = []
+    stored: dict[str, int] = {}
+
+    def service(request: httpx.Request) -> httpx.Response:
+        requests.append(request)
+        key = request.headers["Idempotency-Key"]
+        stored.setdefault(key, len(json.loads(request.content)["objects"]))
+        if len(requests) == 1:  # stored, then the connection is reset before the answer
+            raise httpx.ReadError("connection reset after the service stored the batch", request=request)
+        return httpx.Response(201, json={"added": stored[key], "training_object_count": sum(stored.values())})
+
+    objects = [TrainingObject(noun="cup", adjectives=["hard"], features=ObjectFeatures(entity=[0.0] * ENTITY_SIZE))]
+    with Client("http://service", retry_policy=FAST, transport=httpx.MockTransport(service)) as client:
+        answer = client.training.add_objects("m", objects)
+    assert (answer.added, answer.training_object_count) == (1, 1) and len(stored) == 1
+    keys = [request.headers["Idempotency-Key"] for request in requests]
+    assert len(keys) == 2 and keys[0] == keys[1] and len(keys[0]) == 32, keys

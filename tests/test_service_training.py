@@ -172,3 +172,25 @@ def test_training_labels_are_checked(client: TestClient, model_id: str, training
         assert response.status_code == 422 and response.json()["field"] == field, response.text
     assert client.post(f"/v1/models/{model_id}/fit", json={}).status_code == 409
     assert client.get(f"/v1/models/{model_id}/prototypes").status_code == 409
+
+
+def test_a_keyed_training_batch_retried_is_answered_again_and_adds_nothing(
+    client: TestClient, model_id: str, training_objects: list[dict]
+) -> None:
+    url = f"/v1/models/{model_id}/training-objects"
+    first_batch, second_batch = {"objects": training_objects[:10]}, {"objects": training_objects[10:15]}
+    first = client.post(url, json=first_batch, headers={"Idempotency-Key": "batch-1"})
+    assert first.status_code == 201 and "idempotent-replayed" not in first.headers, first.text
+    assert first.json() == {"added": 10, "training_object_count": 10}
+    assert client.post(url, json=second_batch, headers={"Idempotency-Key": "batch-2"}).status_code == 201
+
+    again = client.post(url, json=first_batch, headers={"Idempotency-Key": "batch-1"})
+    assert again.status_code == 201 and again.headers["idempotent-replayed"] == "true", again.text
+    assert again.json() == {"added": 10, "training_object_count": 10}  # the answer as it was given
+    changed = client.post(url, json=second_batch, headers={"Idempotency-Key": "batch-1"})
+    assert changed.status_code == 422 and changed.json()["error"] == "idempotency_key_reused", changed.text
+    assert changed.json()["field"] == "header.Idempotency-Key"
+    assert client.get(f"/v1/models/{model_id}").json()["training_object_count"] == 15  # nothing added twice
+
+    keyless = client.post(url, json=first_batch)  # without a key a repeat is a new batch
+    assert keyless.json() == {"added": 10, "training_object_count": 25}

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, status
+from fastapi import APIRouter, Response, status
 
 from app.deps import (
     AdmissionDep,
     BodySizeDep,
+    IdempotencyKey,
     ModelDep,
     ReadAccess,
     StateDep,
@@ -17,6 +18,7 @@ from app.deps import (
 )
 from app.errors import (
     Forbidden,
+    IdempotencyKeyReused,
     InvalidInput,
     ModelBusy,
     ModelNotFitted,
@@ -39,19 +41,30 @@ _WRITE_ERRORS = (InvalidInput, ModelNotFound, Unauthorized, Forbidden, ModelBusy
     status_code=status.HTTP_201_CREATED,
     summary="Add labelled training objects (entity/effect vectors or raw payloads)",
     dependencies=[WriteAccess, WriteRate],
-    responses=error_responses(*_WRITE_ERRORS, PayloadTooLarge),
+    responses=error_responses(*_WRITE_ERRORS, PayloadTooLarge, IdempotencyKeyReused),
 )
 async def add_training_objects(
-    body: TrainingBatchCreate, model: WriteModelDep, state: StateDep, admission: AdmissionDep, body_bytes: BodySizeDep
+    body: TrainingBatchCreate,
+    model: WriteModelDep,
+    state: StateDep,
+    admission: AdmissionDep,
+    body_bytes: BodySizeDep,
+    response: Response,
+    idempotency_key: IdempotencyKey = None,
 ) -> TrainingBatchRead:
-    return await admission.run_write(
+    """With an Idempotency-Key, a retry with the same body is answered as the batch first was, with
+    `Idempotent-Replayed: true`, and adds nothing (keys are per model, as for scenes)."""
+    added = await admission.run_write(
         model.id,
         write_model,
         state,
         model,
-        lambda session: training_service.add_training_objects(session, model, body),
+        lambda session: training_service.add_training_objects(session, model, body, idempotency_key),
         body_bytes=body_bytes,
     )
+    if added.replayed:
+        response.headers["Idempotent-Replayed"] = "true"
+    return added.answer
 
 
 @router.post(

@@ -9,12 +9,14 @@ transition model from the effect vectors (§V-E).
 
 from __future__ import annotations
 
+import hashlib
 from datetime import UTC, datetime
+from typing import NamedTuple
 
 import numpy as np
 from sqlalchemy.orm import Session
 
-from app.errors import InvalidInput, ModelNotFitted
+from app.errors import IdempotencyKeyReused, InvalidInput, ModelNotFitted
 from app.registry import FittedPerception, ModelRuntime, behaviour_effects, jsonable
 from app.schemas.training import (
     FitCreate,
@@ -34,12 +36,35 @@ from core.vocabulary import Vocabulary
 from storage.repositories import models as model_repository
 
 
-def add_training_objects(session: Session, model: ModelRuntime, body: TrainingBatchCreate) -> TrainingBatchRead:
+class AddedBatch(NamedTuple):
+    answer: TrainingBatchRead
+    replayed: bool
+    """True when a keyed batch's earlier answer is given again (nothing was added)."""
+
+
+def add_training_objects(
+    session: Session, model: ModelRuntime, body: TrainingBatchCreate, idempotency_key: str | None = None
+) -> AddedBatch:
+    """Add the batch's objects, under the model's write lock. ``idempotency_key``: a retry with the
+    same key and body is answered as the batch first was, and adds nothing; another body is 422
+    ``idempotency_key_reused``. The lookup is under the model's lock, so two processes cannot both
+    add a batch of one key."""
+    request_hash = None
+    if idempotency_key is not None:
+        request_hash = hashlib.sha256(body.model_dump_json().encode()).digest()
+        stored = model_repository.find_training_batch(session, model.id, idempotency_key)
+        if stored is not None:
+            if bytes(stored.request_hash) != request_hash:
+                raise IdempotencyKeyReused(idempotency_key)
+            answer = TrainingBatchRead(added=stored.added, training_object_count=stored.training_object_count)
+            return AddedBatch(answer, replayed=True)
     rows = [_training_row(model.vocabulary, obj, f"objects[{i}]") for i, obj in enumerate(body.objects)]
     model_repository.add_training_objects(session, model.id, rows)
     total = model.training_object_count + len(rows)
+    if idempotency_key is not None and request_hash is not None:
+        model_repository.add_training_batch(session, model.id, idempotency_key, request_hash, len(rows), total)
     model.writer.count_training_objects(total)
-    return TrainingBatchRead(added=len(rows), training_object_count=total)
+    return AddedBatch(TrainingBatchRead(added=len(rows), training_object_count=total), replayed=False)
 
 
 def _training_row(vocabulary: Vocabulary, obj: TrainingObjectCreate, field: str) -> dict[str, object]:

@@ -9,7 +9,7 @@ from typing import Any
 from sqlalchemy import delete, select, update
 from sqlalchemy.orm import Session
 
-from storage.models import Model, TrainingObject
+from storage.models import Model, TrainingBatch, TrainingObject
 
 
 def add_model(
@@ -78,3 +78,23 @@ def list_training_objects(session: Session, model_id: str) -> Sequence[TrainingO
     return session.scalars(
         select(TrainingObject).where(TrainingObject.model_id == model_id).order_by(TrainingObject.id)
     ).all()
+
+
+def find_training_batch(session: Session, model_id: str, idempotency_key: str) -> TrainingBatch | None:
+    """The keyed training batch ``idempotency_key`` of the model, or None."""
+    return session.get(TrainingBatch, (model_id, idempotency_key))
+
+
+def add_training_batch(
+    session: Session, model_id: str, idempotency_key: str, request_hash: bytes, added: int, training_object_count: int
+) -> None:
+    """Remember a keyed batch and its answer (its objects are added by :func:`add_training_objects`)."""
+    session.add(
+        TrainingBatch(
+            model_id=model_id,
+            idempotency_key=idempotency_key,
+            request_hash=request_hash,
+            added=added,
+            training_object_count=training_object_count,
+        )
+    )

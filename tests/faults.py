@@ -147,20 +147,15 @@ def postgres_outage(name: str) -> Iterator[None]:
 
     Connections are allowed again in ``finally``, whatever happened.
     """
-    admin = postgres_admin_engine()
-    try:
-        with admin.connect() as connection:
-            connection.execute(text(f'ALTER DATABASE "{name}" ALLOW_CONNECTIONS false'))
+    with connections_refused(name):
+        admin = postgres_admin_engine()
         try:
             terminate_connections(admin, name)
             time.sleep(0.05)
             terminate_connections(admin, name)  # a connection that was being set up at the ALTER
-            yield
         finally:
-            with admin.connect() as connection:
-                connection.execute(text(f'ALTER DATABASE "{name}" ALLOW_CONNECTIONS true'))
-    finally:
-        admin.dispose()
+            admin.dispose()
+        yield
 
 
 def postgres_outage_for(name: str, seconds: float) -> None:

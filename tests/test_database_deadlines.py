@@ -103,25 +103,28 @@ def test_a_frozen_database_ends_a_write_at_its_deadline_and_nothing_is_doubled(t
         )
 
         # During the commit: frozen while a deferred trigger sleeps in its COMMIT.
-        with psycopg.connect(libpq_url, autocommit=True) as admin:
-            admin.execute(SLOW_COMMIT.format(table="scene", seconds=COMMIT_SLEEP_SECONDS))
+        def frozen_in_commit(table: str, request: Callable[[httpx.Client], httpx.Response]) -> None:
+            """``request`` held in its COMMIT (a trigger on ``table``) and frozen there: cut at the deadline."""
+            with psycopg.connect(libpq_url, autocommit=True) as admin:
+                admin.execute(SLOW_COMMIT.format(table=table, seconds=COMMIT_SLEEP_SECONDS))
 
-        def freeze_the_commit() -> tuple[str, float]:
-            pid, query = backend_when(url, "wait_event = 'PgSleep'")
-            thawed_at = _frozen_for([pid], DEADLINE_SECONDS + FREEZE_MARGIN_SECONDS)
-            backend_gone(url, pid)
-            return query, thawed_at
+            def freeze_the_commit() -> tuple[str, float]:
+                pid, query = backend_when(url, "wait_event = 'PgSleep'")
+                thawed_at = _frozen_for([pid], DEADLINE_SECONDS + FREEZE_MARGIN_SECONDS)
+                backend_gone(url, pid)
+                return query, thawed_at
 
-        answer, (query, thawed_at), timing = answer_while(
-            server.base_url, lambda client: post_keyed_once(client, model_id, posts[5]), freeze_the_commit
-        )
-        assert query.strip().upper().startswith("COMMIT"), query
-        _assert_cut_at_the_deadline(
-            answer, timing, thawed_at, "the write deadline", DEADLINE_SECONDS, "may have stored the write"
-        )
-        with psycopg.connect(libpq_url, autocommit=True) as admin:
-            admin.execute("DROP TRIGGER slow_commit ON scene")
+            try:
+                answer, (query, thawed_at), timing = answer_while(server.base_url, request, freeze_the_commit)
+            finally:
+                with psycopg.connect(libpq_url, autocommit=True) as admin:
+                    admin.execute(f"DROP TRIGGER slow_commit ON {table}")
+            assert query.strip().upper().startswith("COMMIT"), query
+            _assert_cut_at_the_deadline(
+                answer, timing, thawed_at, "the write deadline", DEADLINE_SECONDS, "may have stored the write"
+            )
 
+        frozen_in_commit("scene", lambda client: post_keyed_once(client, model_id, posts[5]))
         with httpx.Client(base_url=server.base_url, timeout=30) as client:
             for post in (posts[4], posts[5], posts[6]):  # the two retries, then one more scene
                 retried = post_keyed_once(client, model_id, post)
@@ -136,20 +139,11 @@ def test_a_frozen_database_ends_a_write_at_its_deadline_and_nothing_is_doubled(t
 
         # A keyed model creation frozen in its COMMIT: the thawed backend commits it, and the retry
         # with the key answers that model instead of making a second one.
-        with psycopg.connect(libpq_url, autocommit=True) as admin:
-            admin.execute(SLOW_COMMIT.format(table="model", seconds=COMMIT_SLEEP_SECONDS))
         creation = {"name": "in-doubt", "hyperparameters": FAST_HYPERPARAMETERS}
-        answer, (query, thawed_at), timing = answer_while(
-            server.base_url,
+        frozen_in_commit(
+            "model",
             lambda client: client.post("/v1/models", json=creation, headers={"Idempotency-Key": "create-in-doubt"}),
-            freeze_the_commit,
         )
-        assert query.strip().upper().startswith("COMMIT"), query
-        _assert_cut_at_the_deadline(
-            answer, timing, thawed_at, "the write deadline", DEADLINE_SECONDS, "may have stored the write"
-        )
-        with psycopg.connect(libpq_url, autocommit=True) as admin:
-            admin.execute("DROP TRIGGER slow_commit ON model")
         with httpx.Client(base_url=server.base_url, timeout=30) as client:
             retried = client.post("/v1/models", json=creation, headers={"Idempotency-Key": "create-in-doubt"})
             assert retried.status_code == 201 and retried.headers["idempotent-replayed"] == "true", retried.text

@@ -33,9 +33,11 @@ from starlette.requests import HTTPConnection, Request
 from app.admission import Admission, Postponed, client_identity
 from app.auth import Principal, authenticate, authorise
 from app.errors import (
+    StorageUnavailable,
     Unauthorized,
     is_storage_busy,
     is_storage_failure,
+    is_unresponsive_database,
     is_write_conflict,
     storage_error,
     storage_failure_reason,
@@ -212,6 +214,9 @@ def model_write(
     by another transaction raises ``LockHeldElsewhere`` at once instead (nothing changed, nothing counted).
     ``idempotency_key``: a keyed scene's key, looked up with the lock (``ModelWrite.locked``).
     """
+    unresponsive = state.storage.unresponsive()
+    if unresponsive is not None:  # a write a moment ago waited out its time-out: do not queue another behind it
+        raise StorageUnavailable(f"{unresponsive} (a write a moment ago; this one was not sent)")
     try:
         with model.writer.transaction(
             state.write_sessions, state.registry, wait=wait, idempotency_key=idempotency_key
@@ -223,7 +228,7 @@ def model_write(
         if failed and state.metrics is not None:
             state.metrics.storage_failed("busy" if is_storage_busy(error) else "unavailable")
         if failed and not is_storage_busy(error):  # a lock held elsewhere says nothing of the database's health
-            state.storage.record_failure(storage_failure_reason(error))
+            state.storage.record_failure(storage_failure_reason(error), unresponsive=is_unresponsive_database(error))
         if failed:
             raise storage_error(error) from error
         if is_write_conflict(error):

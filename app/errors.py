@@ -17,6 +17,7 @@ import sqlite3
 from collections.abc import Sequence
 from typing import Any
 
+import psycopg
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
@@ -343,6 +344,13 @@ def is_storage_busy(exc: BaseException) -> bool:
     if isinstance(original, sqlite3.OperationalError):
         return getattr(original, "sqlite_errorcode", 0) & 0xFF == sqlite3.SQLITE_BUSY
     return getattr(original, "sqlstate", None) == LOCK_NOT_AVAILABLE
+
+
+def is_unresponsive_database(exc: BaseException) -> bool:
+    """A storage failure in which the database did not answer in time at all: a deadline cut the
+    connection (storage/deadlines.py), or a new connection's ``connect_timeout`` ran out."""
+    original = getattr(exc, "orig", None) or exc
+    return deadline_that_passed(exc) is not None or isinstance(original, psycopg.errors.ConnectionTimeout)
 
 
 def storage_error(exc: BaseException) -> ServiceUnavailable:

@@ -23,6 +23,9 @@ from dataclasses import dataclass, field
 PROBE_INTERVAL_SECONDS = 2.0
 #: Seconds a request's storage failure keeps the service not ready unless a write succeeds.
 FAILURE_MEMORY_SECONDS = 5.0
+#: Seconds after a write found the database unresponsive (a deadline or a connection time-out ran
+#: out) during which writes answer 503 at once instead of each waiting out a time-out of its own.
+UNRESPONSIVE_BACKOFF_SECONDS = 1.0
 
 
 @dataclass(eq=False)
@@ -33,17 +36,32 @@ class StorageHealth:
     failure: str | None = None
     failed_at: float = 0.0
     probed_at: float = float("-inf")
+    unresponsive_until: float = float("-inf")
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     def record_success(self) -> None:
         if self.failure is not None:
             with self._lock:
                 self.failure = None
+                self.unresponsive_until = float("-inf")
 
-    def record_failure(self, reason: str) -> None:
+    def record_failure(self, reason: str, *, unresponsive: bool = False) -> None:
+        """A write's storage failure; ``unresponsive``: the database did not answer in time at all
+        (its writes then fail fast for :data:`UNRESPONSIVE_BACKOFF_SECONDS`: :meth:`unresponsive`)."""
         with self._lock:
             self.failure = reason
             self.failed_at = time.monotonic()
+            if unresponsive:
+                self.unresponsive_until = self.failed_at + UNRESPONSIVE_BACKOFF_SECONDS
+
+    def unresponsive(self) -> str | None:
+        """The failure of a write that found the database unresponsive a moment ago, or None.
+
+        The writes queued behind one that waited out its deadline (or its connection's time-out)
+        would each wait as long again, one after the other, on a database that is not answering:
+        for a moment they answer 503 at once instead."""
+        failure = self.failure
+        return failure if failure is not None and time.monotonic() < self.unresponsive_until else None
 
     def probe_due(self) -> bool:
         return self.failure is not None or time.monotonic() - self.probed_at >= PROBE_INTERVAL_SECONDS

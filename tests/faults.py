@@ -445,7 +445,10 @@ class TcpProxy:
     default: TCP connects to the proxy, then nothing ever answers, as when a
     network drops packets: only the client's own timeouts end the wait) or
     *refuses* them (accepted and closed at once). :meth:`restore` ends the
-    blackholed connections and forwards again.
+    blackholed connections and forwards again. :meth:`freeze` is a frozen server
+    instead (a stalled VM): open connections stay open but nothing is relayed, what
+    the server process sends waits in the buffers (the kernel acknowledges it), and
+    new connections are blackholed; :meth:`restore` relays again, buffered bytes first.
 
     Written here with sockets and threads rather than with Toxiproxy: Toxiproxy is
     a Go server binary, which no registry this machine reaches packages (PyPI has
@@ -466,7 +469,7 @@ class TcpProxy:
         self._lock = threading.Lock()
         self._pairs: set[tuple[socket.socket, socket.socket]] = set()
         self._held: set[socket.socket] = set()
-        self._mode = "forward"  # forward | blackhole | refuse
+        self._mode = "forward"  # forward | blackhole | refuse | freeze
         self._closed = threading.Event()
         self.accepted = 0
         self.forwarded = 0
@@ -491,6 +494,11 @@ class TcpProxy:
             _close(client)
             _close(upstream)
         return len(pairs)
+
+    def freeze(self) -> None:
+        """Relay nothing on the open connections (they stay open) and blackhole new ones."""
+        with self._lock:
+            self._mode = "freeze"
 
     def restore(self) -> None:
         """Forward again; the connections held by a blackhole are closed (their clients retry)."""
@@ -533,7 +541,7 @@ class TcpProxy:
             mode = self._mode
             if mode == "refuse":
                 _close(client)
-            elif mode == "blackhole":
+            elif mode in ("blackhole", "freeze"):
                 with self._lock:
                     self._held.add(client)
                 threading.Thread(target=self._swallow, args=(client,), daemon=True).start()
@@ -566,6 +574,10 @@ class TcpProxy:
                 with self._lock:
                     if pair not in self._pairs:
                         return
+                    frozen = self._mode == "freeze"
+                if frozen:
+                    time.sleep(0.05)
+                    continue
                 readable, _, _ = select.select([client, upstream], [], [], 0.2)
                 for sock in readable:
                     data = sock.recv(65536)

@@ -29,6 +29,7 @@ from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
 from tests.faults import (
     SLOW_COMMIT,
     KeyedPost,
+    TcpProxy,
     Timing,
     answer_while,
     at_once,
@@ -205,16 +206,10 @@ def test_writes_queued_behind_one_cut_by_its_deadline_fail_fast(tmp_path: Path) 
         pids = database_backends(url)
         assert len(pids) >= 4, pids
 
-        def timed_post(post: KeyedPost) -> tuple[httpx.Response, float]:
-            started = time.monotonic()
-            with httpx.Client(base_url=server.base_url, timeout=60) as own:
-                answer = post_keyed_once(own, model_id, post)
-            return answer, time.monotonic() - started
-
         with connections_refused(database_name(url)), ExitStack() as frozen:
             for pid in pids:
                 frozen.enter_context(frozen_backend(pid))
-            answers = at_once([partial(timed_post, post) for post in posts[4:8]])
+            answers = at_once([partial(_timed_post, server.base_url, model_id, post) for post in posts[4:8]])
         assert all(answer.status_code == 503 and answer.headers["retry-after"] for answer, _ in answers), [
             answer.text for answer, _ in answers
         ]
@@ -222,6 +217,56 @@ def test_writes_queued_behind_one_cut_by_its_deadline_fail_fast(tmp_path: Path) 
         assert slowest < 2 * DEADLINE_SECONDS, [(answer.json()["error"], seconds) for answer, seconds in answers]
 
         for post in posts[4:]:  # the database back: every retry stores its scene, once
-            assert post_keyed_once(client, model_id, post).status_code == 201
+            _post_until_stored(client, model_id, post)
+        problems = model_invariants(url, [server.base_url], model_id, posts)
+        assert not problems, "\n".join(problems)
+
+
+def _timed_post(base_url: str, model_id: str, post: KeyedPost) -> tuple[httpx.Response, float]:
+    """One attempt of ``post`` on a connection of its own: the answer and the seconds it took."""
+    started = time.monotonic()
+    with httpx.Client(base_url=base_url, timeout=60) as client:
+        answer = post_keyed_once(client, model_id, post)
+    return answer, time.monotonic() - started
+
+
+def _post_until_stored(client: httpx.Client, model_id: str, post: KeyedPost, seconds: float = 20.0) -> None:
+    """Retry ``post`` as a robot does (503s after their ``Retry-After``) until it is a 201."""
+    deadline = time.monotonic() + seconds
+    while (answer := post_keyed_once(client, model_id, post)).status_code == 503 and time.monotonic() < deadline:
+        time.sleep(min(float(answer.headers["retry-after"]), 1.0))
+    assert answer.status_code == 201, answer.text
+
+
+def test_writes_behind_one_that_found_the_database_unresponsive_fail_fast(tmp_path: Path) -> None:
+    """The database frozen for the server (a TCP proxy between them relays nothing on the open
+    connections and blackholes new ones, as a stalled database server does): six writes posted at
+    once to one model. The first waits out its deadline; each of the others would then wait out a
+    time-out of its own, one after the other (a new connection's, 3 s), up to 18 s for the last.
+    For a moment after a write found the database unresponsive, they answer 503 at once instead."""
+    bodies = concept_scenes(12, seed=19)
+    with (
+        fresh_postgres_database("contextweb_frozen_proxy") as url,
+        TcpProxy() as proxy,
+        running_server(
+            proxy.url_for(url), tmp_path, env={"CONTEXTWEB_WRITE_DEADLINE_SECONDS": f"{DEADLINE_SECONDS:g}"}
+        ) as server,
+        httpx.Client(base_url=server.base_url, timeout=60) as client,
+    ):
+        model_id, posts = model_with_keyed_posts(server.base_url, bodies, name="frozen", posted=4)
+        proxy.freeze()
+        try:
+            answers = at_once([partial(_timed_post, server.base_url, model_id, post) for post in posts[4:10]])
+        finally:
+            proxy.restore()
+        assert all(answer.status_code == 503 and answer.headers["retry-after"] for answer, _ in answers), [
+            answer.text for answer, _ in answers
+        ]
+        seconds = sorted(seconds for _, seconds in answers)
+        assert seconds[-1] < 2 * DEADLINE_SECONDS, seconds
+        assert sum(seconds < DEADLINE_SECONDS + 1.0 for seconds in seconds) >= 5, seconds
+
+        for post in posts[4:]:  # the database back: every retry stores its scene, once
+            _post_until_stored(client, model_id, post)
         problems = model_invariants(url, [server.base_url], model_id, posts)
         assert not problems, "\n".join(problems)

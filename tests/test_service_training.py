@@ -13,6 +13,7 @@ import base64
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
+from sqlalchemy import Engine, text
 
 from core.features.layout import EFFECT_SIZE, ENTITY_SIZE
 from sim.world import World
@@ -174,8 +175,17 @@ def test_training_labels_are_checked(client: TestClient, model_id: str, training
     assert client.get(f"/v1/models/{model_id}/prototypes").status_code == 409
 
 
+def _stored_version(engine: Engine, model_id: str) -> int:
+    with engine.connect() as connection:
+        return int(
+            connection.execute(
+                text("SELECT version FROM incremental_lda_state WHERE model_id = :id"), {"id": model_id}
+            ).scalar_one()
+        )
+
+
 def test_a_keyed_training_batch_retried_is_answered_again_and_adds_nothing(
-    client: TestClient, model_id: str, training_objects: list[dict]
+    client: TestClient, model_id: str, training_objects: list[dict], engine: Engine
 ) -> None:
     url = f"/v1/models/{model_id}/training-objects"
     first_batch, second_batch = {"objects": training_objects[:10]}, {"objects": training_objects[10:15]}
@@ -184,8 +194,10 @@ def test_a_keyed_training_batch_retried_is_answered_again_and_adds_nothing(
     assert first.json() == {"added": 10, "training_object_count": 10}
     assert client.post(url, json=second_batch, headers={"Idempotency-Key": "batch-2"}).status_code == 201
 
+    version = _stored_version(engine, model_id)
     again = client.post(url, json=first_batch, headers={"Idempotency-Key": "batch-1"})
     assert again.status_code == 201 and again.headers["idempotent-replayed"] == "true", again.text
+    assert _stored_version(engine, model_id) == version  # a replay is no write: other processes need not catch up
     assert again.json() == {"added": 10, "training_object_count": 10}  # the answer as it was given
     changed = client.post(url, json=second_batch, headers={"Idempotency-Key": "batch-1"})
     assert changed.status_code == 422 and changed.json()["error"] == "idempotency_key_reused", changed.text

@@ -14,6 +14,7 @@ from app.deps import (
     WriteAccess,
     WriteModelDep,
     WriteRate,
+    model_write,
     write_model,
 )
 from app.errors import (
@@ -29,8 +30,10 @@ from app.errors import (
     Unauthorized,
     error_responses,
 )
+from app.registry import ModelRuntime
 from app.schemas.training import FitCreate, FitRead, PrototypeTableRead, TrainingBatchCreate, TrainingBatchRead
 from app.services import training as training_service
+from app.state import AppState
 
 router = APIRouter(prefix="/v1/models/{model_id}", tags=["training"])
 _WRITE_ERRORS = (InvalidInput, ModelNotFound, Unauthorized, Forbidden, ModelBusy, RateLimited, StorageBusy)
@@ -55,16 +58,21 @@ async def add_training_objects(
     """With an Idempotency-Key, a retry with the same body is answered as the batch first was, with
     `Idempotent-Replayed: true`, and adds nothing (keys are per model, as for scenes)."""
     added = await admission.run_write(
-        model.id,
-        write_model,
-        state,
-        model,
-        lambda session: training_service.add_training_objects(session, model, body, idempotency_key),
-        body_bytes=body_bytes,
+        model.id, _add_training_objects, state, model, body, idempotency_key, body_bytes=body_bytes
     )
     if added.replayed:
         response.headers["Idempotent-Replayed"] = "true"
     return added.answer
+
+
+def _add_training_objects(
+    state: AppState, model: ModelRuntime, body: TrainingBatchCreate, idempotency_key: str | None
+) -> training_service.AddedBatch:
+    """The batch in one unit of work of its model; a replay changes nothing (no new version)."""
+    with model_write(state, model) as write:
+        added = training_service.add_training_objects(write.session, model, body, idempotency_key)
+        write.unchanged = added.replayed
+        return added
 
 
 @router.post(

@@ -220,15 +220,19 @@ def end_backend(pid: int) -> None:
 
 
 @contextmanager
-def frozen_backend(pid: int) -> Iterator[None]:
-    """The PostgreSQL backend ``pid`` stopped (SIGSTOP) inside the block, as in a stalled VM: its
-    connection stays open and the kernel still acknowledges what its client sends, but nothing is
+def frozen_backends(pids: Sequence[int]) -> Iterator[None]:
+    """The PostgreSQL backends ``pids`` stopped (SIGSTOP) inside the block, as in a stalled VM: their
+    connections stay open and the kernel still acknowledges what their clients send, but nothing is
     answered. Continued (SIGCONT) in ``finally``, whatever happened."""
-    os.kill(pid, signal.SIGSTOP)
+    stopped: list[int] = []
     try:
+        for pid in pids:
+            os.kill(pid, signal.SIGSTOP)
+            stopped.append(pid)
         yield
     finally:
-        os.kill(pid, signal.SIGCONT)
+        for pid in stopped:
+            os.kill(pid, signal.SIGCONT)
 
 
 def at_once(calls: Sequence[Callable[[], T]]) -> list[T]:

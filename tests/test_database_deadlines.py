@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from contextlib import ExitStack
 from functools import partial
 from pathlib import Path
 
@@ -39,7 +38,7 @@ from tests.faults import (
     database_backends,
     database_name,
     fresh_postgres_database,
-    frozen_backend,
+    frozen_backends,
     holding_model_row,
     model_invariants,
     model_with_keyed_posts,
@@ -70,9 +69,7 @@ def _assert_cut_at_the_deadline(
 
 def _frozen_for(pids: list[int], seconds: float, before_sleep: Callable[[], object] = lambda: None) -> float:
     """Freeze the backends ``pids`` for ``seconds``; the monotonic time of their thaw."""
-    with ExitStack() as frozen:
-        for pid in pids:
-            frozen.enter_context(frozen_backend(pid))
+    with frozen_backends(pids):
         before_sleep()
         time.sleep(seconds)
         return time.monotonic()
@@ -177,9 +174,7 @@ def test_a_frozen_database_ends_a_reads_version_check_at_its_deadline(tmp_path: 
         assert pids, "the server holds no connection to its database"
 
         deadline = VERSION_CHECK_DEADLINE_SECONDS
-        with ExitStack() as frozen, httpx.Client(base_url=server.base_url, timeout=deadline + 5) as client:
-            for pid in pids:
-                frozen.enter_context(frozen_backend(pid))
+        with frozen_backends(pids), httpx.Client(base_url=server.base_url, timeout=deadline + 5) as client:
             started = time.monotonic()  # frozen first: without the deadline this GET times out
             answer = client.get(f"/v1/models/{model_id}")
             timing = Timing(started, time.monotonic())
@@ -206,9 +201,7 @@ def test_writes_queued_behind_one_cut_by_its_deadline_fail_fast(tmp_path: Path) 
         pids = database_backends(url)
         assert len(pids) >= 4, pids
 
-        with connections_refused(database_name(url)), ExitStack() as frozen:
-            for pid in pids:
-                frozen.enter_context(frozen_backend(pid))
+        with connections_refused(database_name(url)), frozen_backends(pids):
             answers = at_once([partial(_timed_post, server.base_url, model_id, post) for post in posts[4:8]])
         assert all(answer.status_code == 503 and answer.headers["retry-after"] for answer, _ in answers), [
             answer.text for answer, _ in answers

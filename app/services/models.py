@@ -2,17 +2,17 @@
 
 from __future__ import annotations
 
-import hashlib
 import uuid
 from typing import NamedTuple
 
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from app.errors import IdempotencyKeyReused, InvalidInput
+from app.errors import InvalidInput
 from app.registry import FittedPerception, ModelRegistry, ModelRuntime, ModelWriter, jsonable
 from app.schemas.models import Hyperparameters as HyperparametersSchema
 from app.schemas.models import ModelCreate, ModelRead, VocabularySchema
+from app.services.idempotency import check_retry, request_digest
 from app.services.perception import Perception
 from app.stream import CLOSE_NORMAL, StreamHub
 from core.context import Hyperparameters, IncrementalLDA
@@ -40,7 +40,7 @@ def create_model(
     with another body, 422 ``idempotency_key_reused``. Two creations with one key racing on two
     processes meet at the key's unique index: the later one's insert is undone (a savepoint) and
     it answers the earlier one's model."""
-    request_hash = None if idempotency_key is None else hashlib.sha256(body.model_dump_json().encode()).digest()
+    request_hash = None if idempotency_key is None else request_digest(body)
     if idempotency_key is not None:
         stored = model_repository.find_by_idempotency_key(session, idempotency_key)
         if stored is not None:
@@ -102,8 +102,7 @@ def _replayed(
     registry: ModelRegistry, idempotency_key: str, request_hash: bytes | None, stored: tuple[str, bytes | None]
 ) -> CreatedModel:
     model_id, stored_hash = stored
-    if stored_hash != request_hash:
-        raise IdempotencyKeyReused(idempotency_key)
+    check_retry(idempotency_key, stored_hash, request_hash)
     return CreatedModel(registry.resolve(model_id), replayed=True)
 
 

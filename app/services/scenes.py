@@ -32,7 +32,6 @@ Then under the model's write lock, :func:`learn_scene`:
 
 from __future__ import annotations
 
-import hashlib
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -42,11 +41,12 @@ from functools import partial
 import numpy as np
 from sqlalchemy.orm import Session
 
-from app.errors import ContextwebError, IdempotencyKeyReused, InvalidInput, SceneNotFound
+from app.errors import ContextwebError, InvalidInput, SceneNotFound
 from app.metrics import ModelEvents
 from app.registry import ModelRuntime, jsonable
 from app.schemas.common import Page
 from app.schemas.scenes import ObjectAnalysis, SceneCreate, SceneRead, SceneSummary
+from app.services.idempotency import check_retry, request_digest
 from app.services.limits import check_vocabulary_growth
 from app.services.perception import (
     ObjectResult,
@@ -124,7 +124,7 @@ def read_scene(model: ModelRuntime, body: SceneCreate, idempotency_key: str | No
     core's (a raw object's features extracted), without any lock. A refusal is kept, not raised:
     a retried scene's stored answer (Idempotency-Key) wins over it, as when the analysis ran under the lock."""
     perception = model.perception
-    request_hash = None if idempotency_key is None else hashlib.sha256(body.model_dump_json().encode()).digest()
+    request_hash = None if idempotency_key is None else request_digest(body)
     try:
         objects = scene_objects(perception, body.objects, model.id)
     except (ContextwebError, InvalidInputError) as refusal:
@@ -187,8 +187,7 @@ def learn_scene(
         else:  # a write of several keyed scenes (bench_restart): looked up here, a round trip of its own
             stored = scene_repository.find_by_idempotency_key(session, model.id, idempotency_key)
         if stored is not None:
-            if stored.request_hash != request_hash:
-                raise IdempotencyKeyReused(idempotency_key)
+            check_retry(idempotency_key, stored.request_hash, request_hash)
             return stored.answer, True
     analysis = prepared.analysis_for(model)
     words = _scene_words(analysis)

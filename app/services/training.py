@@ -9,14 +9,13 @@ transition model from the effect vectors (§V-E).
 
 from __future__ import annotations
 
-import hashlib
 from datetime import UTC, datetime
 from typing import NamedTuple
 
 import numpy as np
 from sqlalchemy.orm import Session
 
-from app.errors import IdempotencyKeyReused, InvalidInput, ModelNotFitted
+from app.errors import InvalidInput, ModelNotFitted
 from app.registry import FittedPerception, ModelRuntime, behaviour_effects, jsonable
 from app.schemas.training import (
     FitCreate,
@@ -27,6 +26,7 @@ from app.schemas.training import (
     TrainingBatchRead,
     TrainingObjectCreate,
 )
+from app.services.idempotency import check_retry, request_digest
 from app.services.perception import Perception, check_behaviours, feature_vectors, raw_feature_vectors
 from core.concept_web import ConceptWeb
 from core.errors import InvalidInputError
@@ -49,20 +49,18 @@ def add_training_objects(
     same key and body is answered as the batch first was, and adds nothing; another body is 422
     ``idempotency_key_reused``. The lookup is under the model's lock, so two processes cannot both
     add a batch of one key."""
-    request_hash = None
-    if idempotency_key is not None:
-        request_hash = hashlib.sha256(body.model_dump_json().encode()).digest()
-        stored = model_repository.find_training_batch(session, model.id, idempotency_key)
+    keyed = None if idempotency_key is None else (idempotency_key, request_digest(body))
+    if keyed is not None:
+        stored = model_repository.find_training_batch(session, model.id, keyed[0])
         if stored is not None:
-            if bytes(stored.request_hash) != request_hash:
-                raise IdempotencyKeyReused(idempotency_key)
+            check_retry(keyed[0], bytes(stored.request_hash), keyed[1])
             answer = TrainingBatchRead(added=stored.added, training_object_count=stored.training_object_count)
             return AddedBatch(answer, replayed=True)
     rows = [_training_row(model.vocabulary, obj, f"objects[{i}]") for i, obj in enumerate(body.objects)]
     model_repository.add_training_objects(session, model.id, rows)
     total = model.training_object_count + len(rows)
-    if idempotency_key is not None and request_hash is not None:
-        model_repository.add_training_batch(session, model.id, idempotency_key, request_hash, len(rows), total)
+    if keyed is not None:
+        model_repository.add_training_batch(session, model.id, *keyed, len(rows), total)
     model.writer.count_training_objects(total)
     return AddedBatch(TrainingBatchRead(added=len(rows), training_object_count=total), replayed=False)
 

@@ -203,11 +203,11 @@ class ModelWriter:
         """
         if self.deleted:
             raise ModelNotFound(self.id)
-        if self.unavailable is not None and time.monotonic() < self.reload_after:
+        if self.unavailable is not None:
             # What the reload under the locks would answer, answered before waiting for them: the
             # writes queued behind one that failed (a database that stopped answering: each would
             # wait out its own deadline) fail fast until the reload's back-off has passed.
-            raise ModelUnavailable(self.id, self.unavailable, retry_after=1)
+            self.refuse_while_backing_off()
         holding = False
         try:
             with write_turn(write_sessions), unit_of_work(write_sessions) as session:
@@ -336,6 +336,11 @@ class ModelWriter:
         self.failed_version = None
         self.failed_checks = 0
         self.publish_summary()
+
+    def refuse_while_backing_off(self) -> None:
+        """503 ``model_unavailable`` while a failed reload's back-off runs (:data:`RELOAD_BACKOFF_SECONDS`)."""
+        if time.monotonic() < self.reload_after:
+            raise ModelUnavailable(self.id, self.unavailable or "reloading", retry_after=1)
 
     def mark_unavailable(self, reason: str, *, failed_version: int | None = None) -> None:
         self.unavailable = reason
@@ -753,8 +758,7 @@ class ModelRegistry:
 
     def reload(self, model: ModelWriter) -> None:
         """Under the model's lock: replace its memory by the stored state, read in one snapshot."""
-        if time.monotonic() < model.reload_after:
-            raise ModelUnavailable(model.id, model.unavailable or "reloading", retry_after=1)
+        model.refuse_while_backing_off()
         try:
             with self._snapshot() as session:
                 version = lda_repository.stored_version(session, model.id)

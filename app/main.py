@@ -130,7 +130,10 @@ def _start(settings: Settings) -> AppState:
         read_sessions=read_sessions,
         write_sessions=write_sessions,
         registry=ModelRegistry(
-            read_sessions, VocabularyLimits.from_settings(settings), checkpoint_interval=settings.checkpoint_interval
+            read_sessions,
+            VocabularyLimits.from_settings(settings),
+            checkpoint_interval=settings.checkpoint_interval,
+            load_deadline_seconds=settings.load_deadline_seconds,
         ),
         hub=hub,
         feed=SceneFeed(hub, engine, read_sessions),

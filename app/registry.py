@@ -659,12 +659,19 @@ class ModelRegistry:
         vocabulary_limits: VocabularyLimits | None = None,
         *,
         checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL,
+        load_deadline_seconds: float | None = None,
     ) -> None:
+        """``load_deadline_seconds``: PostgreSQL, how long a model's load, reload or catch-up may
+        read before its connection is cut (``CONTEXTWEB_LOAD_DEADLINE_SECONDS``); None for no deadline."""
         self.vocabulary_limits = vocabulary_limits or VocabularyLimits.defaults()
         self.checkpoint_interval = checkpoint_interval
         self._models: dict[str, ModelRuntime] = {}
         self._lock = threading.Lock()
-        self._read_sessions = read_sessions
+        self._load_sessions = (
+            read_sessions
+            if load_deadline_seconds is None
+            else with_deadline(read_sessions, load_deadline_seconds, "the load deadline")
+        )
         self._version_sessions = with_deadline(read_sessions, VERSION_CHECK_DEADLINE_SECONDS)
 
     def __len__(self) -> int:
@@ -703,7 +710,10 @@ class ModelRegistry:
     # Keeping memory equal to the database.
 
     def _snapshot(self) -> AbstractContextManager[Session]:
-        return snapshot(self._read_sessions)
+        """One snapshot for a model's load, reload or catch-up, cut at the load deadline: a database
+        that stops answering mid-load must not hold the model's lock (or, for a first load, the
+        registry's) for as long as it stays frozen."""
+        return snapshot(self._load_sessions)
 
     def resolve(self, model_id: str) -> ModelRuntime:
         """The model ``model_id`` as stored now: loaded if another process created it, caught up if

@@ -45,6 +45,7 @@ _LOCK_WAIT_OPTION = "contextweb_lock_wait_ms"
 _DRIVER_OF_TRANSACTION = "contextweb_driver"
 _DEADLINE_TOKEN = "contextweb_deadline"
 _DEADLINE_OPTION = "contextweb_deadline_seconds"
+_DEADLINE_NAME_OPTION = "contextweb_deadline_name"
 
 
 def is_sqlite(url: str) -> bool:
@@ -127,11 +128,12 @@ def _arm_deadline(session: Session, _transaction: Any, connection: Connection) -
 
     A write's deadline is the transaction's, not a statement's: its statements are milliseconds,
     and its one long wait, for a model's lock elsewhere, ends at ``lock_timeout`` (10 s), so the
-    deadline only ends a database that stopped answering. Other reads have none: a model's first
-    load may rightly take longer."""
+    deadline only ends a database that stopped answering. The reads of :func:`with_deadline` sessions
+    have theirs: a request's version check a short one, a model's load (which may rightly take
+    seconds) a long one (app/registry.py)."""
     options = connection.get_execution_options()
     seconds = options.get(_DEADLINE_OPTION)
-    what = "the deadline"
+    what = options.get(_DEADLINE_NAME_OPTION, "the deadline")
     if seconds is None and options.get(_WRITE_OPTION, False):
         seconds = _WRITE_DEADLINE_SECONDS.get(connection.engine.pool)
         what = "the write deadline"
@@ -426,11 +428,11 @@ def with_lock_wait(sessions: sessionmaker[Session], milliseconds: int) -> sessio
     return sessionmaker(bind=bind, expire_on_commit=False, autoflush=False)
 
 
-def with_deadline(sessions: sessionmaker[Session], seconds: float) -> sessionmaker[Session]:
-    """``sessions`` whose PostgreSQL transactions are cut after ``seconds`` (:func:`_arm_deadline`):
-    for the short reads of every request (a model's version), which a frozen database would
-    otherwise hold for as long as the freeze. No effect on SQLite."""
-    bind = sessions.kw["bind"].execution_options(**{_DEADLINE_OPTION: seconds})
+def with_deadline(sessions: sessionmaker[Session], seconds: float, name: str = "the deadline") -> sessionmaker[Session]:
+    """``sessions`` whose PostgreSQL transactions are cut after ``seconds`` (:func:`_arm_deadline`),
+    which a frozen database would otherwise hold for as long as the freeze; ``name`` names the
+    deadline in the 503 ("did not answer within {name} of {seconds} s"). No effect on SQLite."""
+    bind = sessions.kw["bind"].execution_options(**{_DEADLINE_OPTION: seconds, _DEADLINE_NAME_OPTION: name})
     return sessionmaker(bind=bind, expire_on_commit=False, autoflush=False)
 
 

@@ -9,7 +9,9 @@ freeze. With ``CONTEXTWEB_WRITE_DEADLINE_SECONDS`` the connection is cut at the 
   thawed backend finds its client gone and rolls back, so the keyed retry stores the scene anew;
 - frozen in its ``COMMIT`` (a deferred trigger sleeps in it): "may have stored the write", and the
   thawed backend does commit, so the keyed retry gets the stored answer, not a second scene;
-- a keyed model creation frozen in its ``COMMIT``: the same, and the retry answers the stored model.
+- a keyed model creation frozen in its ``COMMIT``: the same, and the retry answers the stored model;
+- a process's catch-up of a model another process wrote to, frozen mid-read: cut at the load
+  deadline, and the model reloads once the database answers again.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from tests.faults import (
     model_with_keyed_posts,
     post_keyed_once,
 )
-from tests.servers import running_server
+from tests.servers import running_server, start_servers, stop_all
 
 pytestmark = pytest.mark.postgres
 
@@ -263,3 +265,45 @@ def test_writes_behind_one_that_found_the_database_unresponsive_fail_fast(tmp_pa
             _post_until_stored(client, model_id, post)
         problems = model_invariants(url, [server.base_url], model_id, posts)
         assert not problems, "\n".join(problems)
+
+
+def test_a_frozen_database_ends_a_models_catch_up_at_the_load_deadline(tmp_path: Path) -> None:
+    """Two processes on one database. B is behind A by two scenes, so its next GET of the model catches
+    up (a snapshot read of the rows written since). That read's backend is frozen while it waits
+    for a table the test holds: it is cut at the load deadline and answered 503, where it would
+    otherwise hold the model's lock until the thaw. After the thaw, B reloads and agrees with A."""
+    bodies = concept_scenes(8, seed=23)
+    env = {"CONTEXTWEB_LOAD_DEADLINE_SECONDS": f"{DEADLINE_SECONDS:g}"}
+    with fresh_postgres_database("contextweb_load_deadline") as url:
+        a, b = start_servers([url, url], tmp_path, env=env)
+        try:
+            model_id, posts = model_with_keyed_posts(a.base_url, bodies, name="load-deadline", posted=4)
+            with httpx.Client(base_url=b.base_url, timeout=30) as client:
+                assert client.get(f"/v1/models/{model_id}").status_code == 200  # B loads it
+            with httpx.Client(base_url=a.base_url, timeout=30) as client:
+                for post in posts[4:6]:
+                    assert post_keyed_once(client, model_id, post).status_code == 201  # B is behind now
+
+            with psycopg.connect(url.replace("postgresql+psycopg://", "postgresql://")) as outside:
+                outside.execute("LOCK TABLE token_batch IN ACCESS EXCLUSIVE MODE")
+
+                def freeze_the_catch_up() -> float:
+                    pid, _ = backend_when(url, "wait_event_type = 'Lock'")
+                    return _frozen_for(
+                        [pid], DEADLINE_SECONDS + FREEZE_MARGIN_SECONDS, before_sleep=outside.commit
+                    )  # the table released: only the freeze holds the read now
+
+                answer, thawed_at, timing = answer_while(
+                    b.base_url, lambda client: client.get(f"/v1/models/{model_id}"), freeze_the_catch_up
+                )
+            _assert_cut_at_the_deadline(answer, timing, thawed_at, "the load deadline", DEADLINE_SECONDS)
+
+            answers = {}
+            for server in (a, b):
+                with httpx.Client(base_url=server.base_url, timeout=30) as client:
+                    answer = client.get(f"/v1/models/{model_id}")
+                    assert answer.status_code == 200, answer.text
+                    answers[server.base_url] = answer.json()["scene_count"]
+            assert set(answers.values()) == {6}, answers
+        finally:
+            stop_all([a, b])

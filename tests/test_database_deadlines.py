@@ -16,6 +16,7 @@ freeze. With ``CONTEXTWEB_WRITE_DEADLINE_SECONDS`` the connection is cut at the 
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 from functools import partial
@@ -39,6 +40,7 @@ from tests.faults import (
     create_model,
     database_backends,
     database_name,
+    end_backend,
     fresh_postgres_database,
     frozen_backends,
     holding_model_row,
@@ -307,3 +309,63 @@ def test_a_frozen_database_ends_a_models_catch_up_at_the_load_deadline(tmp_path:
             assert set(answers.values()) == {6}, answers
         finally:
             stop_all([a, b])
+
+
+def test_a_write_to_a_model_whose_reload_just_failed_is_refused_before_it_waits_for_a_lock(tmp_path: Path) -> None:
+    """A write fails in its ``COMMIT`` (its backend ended while new connections are refused): its
+    undo's reload fails too, and the model stays unavailable while the reload's 1 s back-off runs.
+    The next write, sent at once with connections allowed again, finds the model's row held by an
+    outside transaction: it is answered 503 ``model_unavailable`` before it waits for that lock.
+    Without the early refusal it waits for the lock's time-out (10 s), as each write queued behind
+    a failed one would in turn."""
+    bodies = concept_scenes(8, seed=29)
+    with (
+        fresh_postgres_database("contextweb_early_refusal") as url,
+        running_server(url, tmp_path) as server,
+        httpx.Client(base_url=server.base_url, timeout=30) as client,
+    ):
+        model_id, posts = model_with_keyed_posts(server.base_url, bodies, name="early-refusal", posted=4)
+        libpq_url = url.replace("postgresql+psycopg://", "postgresql://")
+        with psycopg.connect(libpq_url, autocommit=True) as admin:
+            admin.execute(SLOW_COMMIT.format(table="scene", seconds=30))
+        try:
+            with psycopg.connect(libpq_url) as outside:
+                row_taken = threading.Event()
+                answered = threading.Event()
+
+                def take_the_row() -> None:  # waits for the write's lock, so gets the row when its backend ends
+                    outside.execute("SELECT 1 FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (model_id,))
+                    row_taken.set()
+
+                def end_the_commit() -> None:
+                    pid, _ = backend_when(url, "wait_event = 'PgSleep'")
+                    taker.start()
+                    backend_when(url, "wait_event_type = 'Lock'")
+                    with connections_refused(database_name(url)):
+                        end_backend(pid)
+                        answered.wait(20)  # the write's answer: its undo's reload has failed
+
+                taker = threading.Thread(target=take_the_row)
+                fault = threading.Thread(target=end_the_commit)
+                fault.start()
+                failed = post_keyed_once(client, model_id, posts[4])
+                answered.set()
+                fault.join(30)  # connections allowed again
+                assert failed.status_code == 503, failed.text
+                assert row_taken.wait(10), "the outside transaction never got the model's row"
+                started = time.monotonic()
+                refused = post_keyed_once(client, model_id, posts[5])
+                seconds = time.monotonic() - started
+                outside.commit()
+                taker.join(10)
+            assert refused.status_code == 503 and refused.headers["retry-after"], refused.text
+            assert refused.json()["error"] == "model_unavailable", refused.text
+            assert seconds < 0.5, seconds
+        finally:
+            with psycopg.connect(libpq_url, autocommit=True) as admin:
+                admin.execute("DROP TRIGGER slow_commit ON scene")
+
+        for post in posts[4:]:  # the database back: every retry stores its scene, once
+            _post_until_stored(client, model_id, post)
+        problems = model_invariants(url, [server.base_url], model_id, posts)
+        assert not problems, "\n".join(problems)

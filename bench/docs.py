@@ -43,22 +43,41 @@ def section(name: str, result: Any) -> str:
     return "\n".join(lines) + "\n"
 
 
-def render(header: str, results: Path = RESULTS) -> str:
-    sections = []
+def render(header: str, results: Path = RESULTS, kept: dict[str, str] | None = None) -> str:
+    """``header``, then one section per result file, with the ``kept`` sections (by name) of
+    benchmarks that have no result file here, in name order."""
+    sections = dict(kept or {})
     for path in sorted(results.glob("*.json")):
         try:
             result = json.loads(path.read_text(encoding="utf-8"))
         except json.JSONDecodeError as error:
-            sections.append(f"## {path.stem}\n\n`{path.name}` is not valid JSON ({error}).\n")
+            sections[path.stem] = f"## {path.stem}\n\n`{path.name}` is not valid JSON ({error}).\n"
             continue
-        sections.append(section(path.stem, result))
-    body = "\n".join(sections) if sections else "No results yet: run `make bench` (or `python -m bench NAME`).\n"
+        sections[path.stem] = section(path.stem, result)
+    body = (
+        "\n".join(sections[name] for name in sorted(sections))
+        if sections
+        else "No results yet: run `make bench` (or `python -m bench NAME`).\n"
+    )
     return f"{header.rstrip()}\n\n{MARKER}\n\n{body}"
 
 
+def generated_sections(text: str) -> dict[str, str]:
+    """The generated sections of a benchmarks document, by benchmark name."""
+    if MARKER not in text:
+        return {}
+    generated = text.split(MARKER, 1)[1]
+    parts = generated.split("\n## ")[1:]
+    return {part.split("\n", 1)[0].strip(): "## " + part.rstrip("\n") + "\n" for part in parts}
+
+
 def write_benchmarks_doc(doc: Path = DOC, results: Path = RESULTS) -> Path:
-    """Keep ``doc``'s hand-written header, regenerate the rest from ``results``; the path written."""
+    """Keep ``doc``'s hand-written header, regenerate the rest from ``results``; the path written.
+
+    A section whose benchmark has no result file here is kept as it was: the results folder is not
+    in git, so on a fresh clone ``python -m bench NAME`` would otherwise drop every other
+    benchmark's last figures."""
     text = doc.read_text(encoding="utf-8") if doc.exists() else "# Benchmarks\n"
     header = text.split(MARKER, 1)[0]
-    doc.write_text(render(header, results), encoding="utf-8")
+    doc.write_text(render(header, results, generated_sections(text)), encoding="utf-8")
     return doc

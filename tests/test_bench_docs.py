@@ -15,14 +15,17 @@ def test_the_header_is_kept_and_the_tables_follow_the_results(tmp_path: Path) ->
     (results / "features.json").write_text(json.dumps({"mfcc": {"ms": 1.23456, "ratio": 3}, "runs": [1, 2]}))
     (results / "context.json").write_text(json.dumps({"series": list(range(50)), "note": "a|b"}))
     doc = tmp_path / "benchmarks.md"
-    doc.write_text(f"# Benchmarks\n\nHand-written.\n\n{MARKER}\n\n## stale\n\n| `old` | 9 |\n")
+    doc.write_text(
+        f"# Benchmarks\n\nHand-written.\n\n{MARKER}\n\n## admission\n\n| `kept` | 9 |\n\n## features\n\n| `old` | 8 |\n"
+    )
 
     write_benchmarks_doc(doc, results)
     text = doc.read_text()
     header, generated = text.split(MARKER)
     assert header == "# Benchmarks\n\nHand-written.\n\n"
-    assert "stale" not in generated
-    assert generated.index("## context") < generated.index("## features")
+    assert "| `old` | 8 |" not in generated, "a result file replaces its section"
+    assert "## admission\n\n| `kept` | 9 |\n" in generated, "a benchmark without a result file here keeps its figures"
+    assert generated.index("## admission") < generated.index("## context") < generated.index("## features")
     assert "| `mfcc.ms` | 1.235 |" in generated and "| `mfcc.ratio` | 3 |" in generated
     assert "| `runs` | 1, 2 |" in generated and "| `series` | (50 values) |" in generated
     assert "| `note` | a\\|b |" in generated

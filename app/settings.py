@@ -122,7 +122,7 @@ class Settings(BaseSettings):
         description="PostgreSQL: how long a model's load, reload or catch-up may read before its connection is cut "
         "and the request answered 503 (a database that stopped answering, which would otherwise hold the model's "
         "lock, and for a first load every other first load, until it answers). A model of 1,000,000 scenes loads "
-        "in about 3 s here (docs/benchmarks.md); a first load waits for no lock.",
+        "in about 3 s here (docs/benchmarks.md); a load's reads wait for no write's lock.",
     )
 
     @field_validator("write_key", "read_key", mode="before")

@@ -86,6 +86,11 @@ def serving_app(settings: Settings | None = None) -> FastAPI:
     :func:`app.main.create_app`. uvicorn calls it in every worker process (``--workers N``), so
     each worker is warm before it accepts a connection; ``create_app`` itself stays a plain factory.
 
+    FastAPI builds a route's parameter and body fields on the route's first request (≈ 30 ms of
+    that request, docs/benchmarks.md); building the OpenAPI document builds every route's here.
+    It also keeps that building off the request threads, where FastAPI's
+    ``warnings.catch_warnings()`` around it (not thread-safe) could meet another thread's.
+
     The freeze comes before the app's lifespan loads the stored models: they are made after it,
     like the models a serving process creates later, and their cyclic garbage stays collectable.
     """
@@ -93,8 +98,10 @@ def serving_app(settings: Settings | None = None) -> FastAPI:
     from app.services.warmup import freeze_start_up_objects, warm_up_kernels
 
     warm_up_kernels()  # before /readyz says ready: a first request must not wait for numba to compile
+    app = create_app(settings)
+    app.openapi()  # nor for FastAPI to build its route's fields
     freeze_start_up_objects()  # and must not stall on a full collection of start-up's objects
-    return create_app(settings)
+    return app
 
 
 def run_serve(args: argparse.Namespace) -> int:

@@ -8,7 +8,7 @@ import numpy as np
 from fastapi.testclient import TestClient
 
 from app.main import create_app
-from tests.conftest import CONTEXT_CONCEPTS, FAST_HYPERPARAMETERS, make_settings
+from tests.conftest import CONTEXT_CONCEPTS, FAST_HYPERPARAMETERS, make_settings, two_processes
 from tests.faults import at_once
 
 
@@ -97,10 +97,7 @@ def test_labels_written_at_once_from_two_processes_all_succeed(database_url: str
     each PATCH is a 200 (before, two that both found no row both inserted it, and one was a 500),
     and the label stored is one of those sent."""
     rng = np.random.default_rng(5)
-    with (  # a server error is a 500 here, as a robot would get it, not an exception in the thread
-        TestClient(create_app(make_settings(database_url)), raise_server_exceptions=False) as first,
-        TestClient(create_app(make_settings(database_url)), raise_server_exceptions=False) as second,
-    ):
+    with two_processes(database_url) as (first, second):
         model_id = first.post("/v1/models", json={"name": "t", "hyperparameters": FAST_HYPERPARAMETERS}).json()["id"]
         assert first.post(f"/v1/models/{model_id}/scenes", json=_room_scene("kitchen", rng)).status_code == 201
         url = f"/v1/models/{model_id}/contexts/0"
@@ -124,10 +121,7 @@ def test_a_label_written_while_another_process_deletes_the_model_is_a_200_or_a_4
     on another process is a 404 (or a 200 before it), never a server error (a 500 before: the
     label was not a write of its model, and its insert met the deleted model)."""
     rng = np.random.default_rng(6)
-    with (
-        TestClient(create_app(make_settings(database_url)), raise_server_exceptions=False) as first,
-        TestClient(create_app(make_settings(database_url)), raise_server_exceptions=False) as second,
-    ):
+    with two_processes(database_url) as (first, second):
         unexpected = []
         for round_ in range(20):
             created = first.post("/v1/models", json={"name": "t", "hyperparameters": FAST_HYPERPARAMETERS})

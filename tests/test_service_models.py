@@ -6,8 +6,7 @@ from functools import partial
 
 from fastapi.testclient import TestClient
 
-from app.main import create_app
-from tests.conftest import FAST_HYPERPARAMETERS, make_settings
+from tests.conftest import FAST_HYPERPARAMETERS, two_processes
 from tests.faults import at_once
 
 
@@ -135,10 +134,7 @@ def test_one_key_created_at_once_on_two_processes_makes_one_model(database_url: 
     """Two processes, two threads each, create with one key at the same moment, 10 times: every
     answer is a 201 naming the same model (a later insert meets the key's unique index, is undone
     by its savepoint, and answers the stored model), and one model per key is stored."""
-    with (  # a server error is a 500 here, as a robot would get it, not an exception in the thread
-        TestClient(create_app(make_settings(database_url)), raise_server_exceptions=False) as first,
-        TestClient(create_app(make_settings(database_url)), raise_server_exceptions=False) as second,
-    ):
+    with two_processes(database_url) as (first, second):
         for round_ in range(10):
             body = {"name": f"race {round_}", "hyperparameters": FAST_HYPERPARAMETERS}
             headers = {"Idempotency-Key": f"race-{round_}"}

@@ -269,11 +269,15 @@ def test_writes_behind_one_that_found_the_database_unresponsive_fail_fast(tmp_pa
         assert not problems, "\n".join(problems)
 
 
-def test_a_frozen_database_ends_a_models_catch_up_at_the_load_deadline(tmp_path: Path) -> None:
+def test_a_frozen_database_ends_a_models_catch_up_and_first_load_at_the_load_deadline(tmp_path: Path) -> None:
     """Two processes on one database. B is behind A by two scenes, so its next GET of the model catches
     up (a snapshot read of the rows written since). That read's backend is frozen while it waits
     for a table the test holds: it is cut at the load deadline and answered 503, where it would
-    otherwise hold the model's lock until the thaw. After the thaw, B reloads and agrees with A."""
+    otherwise hold the model's lock until the thaw. After the thaw, B reloads and agrees with A.
+
+    Then B's first load of a model A created, frozen the same way, holds the registry's lock, which
+    B's first load of another model waits for: the frozen one is cut at the load deadline, and the
+    other is answered 200 before the thaw."""
     bodies = concept_scenes(8, seed=23)
     env = {"CONTEXTWEB_LOAD_DEADLINE_SECONDS": f"{DEADLINE_SECONDS:g}"}
     with fresh_postgres_database("contextweb_load_deadline") as url:
@@ -307,6 +311,34 @@ def test_a_frozen_database_ends_a_models_catch_up_at_the_load_deadline(tmp_path:
                     assert answer.status_code == 200, answer.text
                     answers[server.base_url] = answer.json()["scene_count"]
             assert set(answers.values()) == {6}, answers
+
+            frozen_model, queued_model = (create_model(a.base_url, FAST_HYPERPARAMETERS, name=f"new {i}") for i in "12")
+            queued: list[tuple[httpx.Response, float]] = []
+
+            def get_queued_model() -> None:
+                with httpx.Client(base_url=b.base_url, timeout=60) as client:
+                    queued.append((client.get(f"/v1/models/{queued_model}"), time.monotonic()))
+
+            with psycopg.connect(url.replace("postgresql+psycopg://", "postgresql://")) as outside:
+                outside.execute("LOCK TABLE model IN ACCESS EXCLUSIVE MODE")
+
+                def freeze_the_first_load() -> float:
+                    pid, _ = backend_when(url, "wait_event_type = 'Lock'")
+                    behind = threading.Thread(target=get_queued_model)  # waits for the registry's lock
+                    behind.start()
+                    thawed_at = _frozen_for([pid], DEADLINE_SECONDS + FREEZE_MARGIN_SECONDS, outside.commit)
+                    behind.join(30)
+                    return thawed_at
+
+                answer, thawed_at, timing = answer_while(
+                    b.base_url, lambda client: client.get(f"/v1/models/{frozen_model}"), freeze_the_first_load
+                )
+            _assert_cut_at_the_deadline(answer, timing, thawed_at, "the load deadline", DEADLINE_SECONDS)
+            ((queued_answer, queued_at),) = queued
+            assert queued_answer.status_code == 200, queued_answer.text
+            assert queued_at < thawed_at, (queued_at, thawed_at)
+            with httpx.Client(base_url=b.base_url, timeout=30) as client:
+                assert client.get(f"/v1/models/{frozen_model}").status_code == 200
         finally:
             stop_all([a, b])
 

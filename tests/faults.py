@@ -164,15 +164,33 @@ def postgres_outage_for(name: str, seconds: float) -> None:
         time.sleep(seconds)
 
 
-SLOW_COMMIT = """
+def libpq_url(url: str) -> str:
+    """The SQLAlchemy URL ``url`` as psycopg's own ``connect`` takes it."""
+    return url.replace("postgresql+psycopg://", "postgresql://")
+
+
+_SLOW_COMMIT = """
 CREATE OR REPLACE FUNCTION slow_commit() RETURNS trigger LANGUAGE plpgsql AS $$
 BEGIN PERFORM pg_sleep({seconds}); RETURN NULL; END $$;
 CREATE CONSTRAINT TRIGGER slow_commit AFTER INSERT ON {table} DEFERRABLE INITIALLY DEFERRED
 FOR EACH ROW EXECUTE FUNCTION slow_commit();
 """
-"""SQL of a deferred constraint trigger that holds every ``COMMIT`` inserting into ``{table}`` for
-``{seconds}`` (its backend waits with ``wait_event = 'PgSleep'``); ``DROP TRIGGER slow_commit ON
-{table}`` ends it."""
+
+
+@contextmanager
+def slow_commits(url: str, table: str, seconds: float) -> Iterator[None]:
+    """Inside the block, every ``COMMIT`` that inserted into ``table`` of database ``url`` is held for
+    ``seconds`` by a deferred constraint trigger (its backend waits with ``wait_event = 'PgSleep'``);
+    the trigger is dropped in ``finally``."""
+    import psycopg
+
+    with psycopg.connect(libpq_url(url), autocommit=True) as admin:
+        admin.execute(_SLOW_COMMIT.format(table=table, seconds=seconds))
+    try:
+        yield
+    finally:
+        with psycopg.connect(libpq_url(url), autocommit=True) as admin:
+            admin.execute(f"DROP TRIGGER slow_commit ON {table}")
 
 
 def backend_when(url: str, condition: str, seconds: float = 20.0) -> tuple[int, str]:
@@ -269,7 +287,7 @@ def holding_model_row(url: str, model_id: str) -> Iterator[Any]:
     the model waits for; the open psycopg connection (commit it to let them through)."""
     import psycopg
 
-    with psycopg.connect(url.replace("postgresql+psycopg://", "postgresql://")) as outside:
+    with psycopg.connect(libpq_url(url)) as outside:
         outside.execute("SELECT 1 FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (model_id,))
         yield outside
 

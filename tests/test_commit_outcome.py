@@ -14,12 +14,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import httpx
-import psycopg
 import pytest
 
 from tests.conftest import concept_scenes
 from tests.faults import (
-    SLOW_COMMIT,
     answer_while,
     backend_when,
     end_backend,
@@ -28,6 +26,7 @@ from tests.faults import (
     model_invariants,
     model_with_keyed_posts,
     post_keyed_once,
+    slow_commits,
 )
 from tests.servers import running_server
 
@@ -45,7 +44,6 @@ def test_a_503_says_whether_the_commit_was_sent(tmp_path: Path) -> None:
     bodies = concept_scenes(8, seed=3)
     with fresh_postgres_database("contextweb_commit") as url, running_server(url, tmp_path) as server:
         model_id, posts = model_with_keyed_posts(server.base_url, bodies, name="commit", posted=4)
-        libpq_url = url.replace("postgresql+psycopg://", "postgresql://")
         # Before the commit: the write waits for the model's row, held by an outside transaction.
         with holding_model_row(url, model_id):
             answer, query, _ = answer_while(
@@ -58,20 +56,17 @@ def test_a_503_says_whether_the_commit_was_sent(tmp_path: Path) -> None:
         assert answer.json()["error"] == "storage_unavailable" and "nothing was changed" in answer.json()["detail"]
 
         # During the commit: the backend ends while the deferred trigger sleeps in COMMIT.
-        with psycopg.connect(libpq_url, autocommit=True) as admin:
-            admin.execute(SLOW_COMMIT.format(table="scene", seconds=30))
-        answer, query, _ = answer_while(
-            server.base_url,
-            lambda client: post_keyed_once(client, model_id, posts[6]),
-            lambda: _end_backend_when(url, "wait_event = 'PgSleep'"),
-        )
+        with slow_commits(url, "scene", 30):
+            answer, query, _ = answer_while(
+                server.base_url,
+                lambda client: post_keyed_once(client, model_id, posts[6]),
+                lambda: _end_backend_when(url, "wait_event = 'PgSleep'"),
+            )
         assert query.strip().upper().startswith("COMMIT"), query
         assert answer.status_code == 503 and answer.headers["retry-after"], answer.text
         detail = answer.json()["detail"]
         assert answer.json()["error"] == "storage_unavailable", answer.text
         assert "may have stored the write" in detail and "same Idempotency-Key" in detail, detail
-        with psycopg.connect(libpq_url, autocommit=True) as admin:
-            admin.execute("DROP TRIGGER slow_commit ON scene")
 
         with httpx.Client(base_url=server.base_url, timeout=30) as client:
             for post in (posts[4], posts[6], posts[7]):  # the retries, then one more scene
@@ -82,17 +77,14 @@ def test_a_503_says_whether_the_commit_was_sent(tmp_path: Path) -> None:
         assert not problems, "\n".join(problems)
 
         # Not a model's write: a model's creation, its commit ended the same way.
-        with psycopg.connect(libpq_url, autocommit=True) as admin:
-            admin.execute(SLOW_COMMIT.format(table="model", seconds=30))
-        answer, query, _ = answer_while(
-            server.base_url,
-            lambda client: client.post("/v1/models", json={"name": "in-doubt"}),
-            lambda: _end_backend_when(url, "wait_event = 'PgSleep'"),
-        )
+        with slow_commits(url, "model", 30):
+            answer, query, _ = answer_while(
+                server.base_url,
+                lambda client: client.post("/v1/models", json={"name": "in-doubt"}),
+                lambda: _end_backend_when(url, "wait_event = 'PgSleep'"),
+            )
         assert query.strip().upper().startswith("COMMIT"), query
         assert answer.status_code == 503 and answer.json()["error"] == "storage_unavailable", answer.text
         assert "may have stored the write" in answer.json()["detail"], answer.text
-        with psycopg.connect(libpq_url, autocommit=True) as admin:
-            admin.execute("DROP TRIGGER slow_commit ON model")
         names = [model["name"] for model in httpx.get(f"{server.base_url}/v1/models", timeout=30).json()]
         assert names == ["commit"], names  # ended in its commit's trigger: not stored, and not listed

@@ -29,7 +29,6 @@ import pytest
 from app.registry import VERSION_CHECK_DEADLINE_SECONDS
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
 from tests.faults import (
-    SLOW_COMMIT,
     KeyedPost,
     TcpProxy,
     Timing,
@@ -44,9 +43,11 @@ from tests.faults import (
     fresh_postgres_database,
     frozen_backends,
     holding_model_row,
+    libpq_url,
     model_invariants,
     model_with_keyed_posts,
     post_keyed_once,
+    slow_commits,
 )
 from tests.servers import running_server, start_servers, stop_all
 
@@ -86,7 +87,6 @@ def test_a_frozen_database_ends_a_write_at_its_deadline_and_nothing_is_doubled(t
         running_server(url, tmp_path, env={"CONTEXTWEB_WRITE_DEADLINE_SECONDS": f"{DEADLINE_SECONDS:g}"}) as server,
     ):
         model_id, posts = model_with_keyed_posts(server.base_url, bodies, name="deadline", posted=4)
-        libpq_url = url.replace("postgresql+psycopg://", "postgresql://")
 
         # Before the commit: frozen while it waits for the model's row, held by an outside transaction.
         with holding_model_row(url, model_id) as outside:
@@ -107,8 +107,6 @@ def test_a_frozen_database_ends_a_write_at_its_deadline_and_nothing_is_doubled(t
         # During the commit: frozen while a deferred trigger sleeps in its COMMIT.
         def frozen_in_commit(table: str, request: Callable[[httpx.Client], httpx.Response]) -> None:
             """``request`` held in its COMMIT (a trigger on ``table``) and frozen there: cut at the deadline."""
-            with psycopg.connect(libpq_url, autocommit=True) as admin:
-                admin.execute(SLOW_COMMIT.format(table=table, seconds=COMMIT_SLEEP_SECONDS))
 
             def freeze_the_commit() -> tuple[str, float]:
                 pid, query = backend_when(url, "wait_event = 'PgSleep'")
@@ -116,11 +114,8 @@ def test_a_frozen_database_ends_a_write_at_its_deadline_and_nothing_is_doubled(t
                 backend_gone(url, pid)
                 return query, thawed_at
 
-            try:
+            with slow_commits(url, table, COMMIT_SLEEP_SECONDS):
                 answer, (query, thawed_at), timing = answer_while(server.base_url, request, freeze_the_commit)
-            finally:
-                with psycopg.connect(libpq_url, autocommit=True) as admin:
-                    admin.execute(f"DROP TRIGGER slow_commit ON {table}")
             assert query.strip().upper().startswith("COMMIT"), query
             _assert_cut_at_the_deadline(
                 answer, timing, thawed_at, "the write deadline", DEADLINE_SECONDS, "may have stored the write"
@@ -290,7 +285,7 @@ def test_a_frozen_database_ends_a_models_catch_up_and_first_load_at_the_load_dea
                 for post in posts[4:6]:
                     assert post_keyed_once(client, model_id, post).status_code == 201  # B is behind now
 
-            with psycopg.connect(url.replace("postgresql+psycopg://", "postgresql://")) as outside:
+            with psycopg.connect(libpq_url(url)) as outside:
                 outside.execute("LOCK TABLE token_batch IN ACCESS EXCLUSIVE MODE")
 
                 def freeze_the_catch_up() -> float:
@@ -319,7 +314,7 @@ def test_a_frozen_database_ends_a_models_catch_up_and_first_load_at_the_load_dea
                 with httpx.Client(base_url=b.base_url, timeout=60) as client:
                     queued.append((client.get(f"/v1/models/{queued_model}"), time.monotonic()))
 
-            with psycopg.connect(url.replace("postgresql+psycopg://", "postgresql://")) as outside:
+            with psycopg.connect(libpq_url(url)) as outside:
                 outside.execute("LOCK TABLE model IN ACCESS EXCLUSIVE MODE")
 
                 def freeze_the_first_load() -> float:
@@ -357,45 +352,38 @@ def test_a_write_to_a_model_whose_reload_just_failed_is_refused_before_it_waits_
         httpx.Client(base_url=server.base_url, timeout=30) as client,
     ):
         model_id, posts = model_with_keyed_posts(server.base_url, bodies, name="early-refusal", posted=4)
-        libpq_url = url.replace("postgresql+psycopg://", "postgresql://")
-        with psycopg.connect(libpq_url, autocommit=True) as admin:
-            admin.execute(SLOW_COMMIT.format(table="scene", seconds=30))
-        try:
-            with psycopg.connect(libpq_url) as outside:
-                row_taken = threading.Event()
-                answered = threading.Event()
+        with slow_commits(url, "scene", 30), psycopg.connect(libpq_url(url)) as outside:
+            row_taken = threading.Event()
+            answered = threading.Event()
 
-                def take_the_row() -> None:  # waits for the write's lock, so gets the row when its backend ends
-                    outside.execute("SELECT 1 FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (model_id,))
-                    row_taken.set()
+            def take_the_row() -> None:  # waits for the write's lock, so gets the row when its backend ends
+                outside.execute("SELECT 1 FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (model_id,))
+                row_taken.set()
 
-                def end_the_commit() -> None:
-                    pid, _ = backend_when(url, "wait_event = 'PgSleep'")
-                    taker.start()
-                    backend_when(url, "wait_event_type = 'Lock'")
-                    with connections_refused(database_name(url)):
-                        end_backend(pid)
-                        answered.wait(20)  # the write's answer: its undo's reload has failed
+            def end_the_commit() -> None:
+                pid, _ = backend_when(url, "wait_event = 'PgSleep'")
+                taker.start()
+                backend_when(url, "wait_event_type = 'Lock'")
+                with connections_refused(database_name(url)):
+                    end_backend(pid)
+                    answered.wait(20)  # the write's answer: its undo's reload has failed
 
-                taker = threading.Thread(target=take_the_row)
-                fault = threading.Thread(target=end_the_commit)
-                fault.start()
-                failed = post_keyed_once(client, model_id, posts[4])
-                answered.set()
-                fault.join(30)  # connections allowed again
-                assert failed.status_code == 503, failed.text
-                assert row_taken.wait(10), "the outside transaction never got the model's row"
-                started = time.monotonic()
-                refused = post_keyed_once(client, model_id, posts[5])
-                seconds = time.monotonic() - started
-                outside.commit()
-                taker.join(10)
-            assert refused.status_code == 503 and refused.headers["retry-after"], refused.text
-            assert refused.json()["error"] == "model_unavailable", refused.text
-            assert seconds < 0.5, seconds
-        finally:
-            with psycopg.connect(libpq_url, autocommit=True) as admin:
-                admin.execute("DROP TRIGGER slow_commit ON scene")
+            taker = threading.Thread(target=take_the_row)
+            fault = threading.Thread(target=end_the_commit)
+            fault.start()
+            failed = post_keyed_once(client, model_id, posts[4])
+            answered.set()
+            fault.join(30)  # connections allowed again
+            assert failed.status_code == 503, failed.text
+            assert row_taken.wait(10), "the outside transaction never got the model's row"
+            started = time.monotonic()
+            refused = post_keyed_once(client, model_id, posts[5])
+            seconds = time.monotonic() - started
+            outside.commit()
+            taker.join(10)
+        assert refused.status_code == 503 and refused.headers["retry-after"], refused.text
+        assert refused.json()["error"] == "model_unavailable", refused.text
+        assert seconds < 0.5, seconds
 
         for post in posts[4:]:  # the database back: every retry stores its scene, once
             _post_until_stored(client, model_id, post)

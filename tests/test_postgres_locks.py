@@ -21,7 +21,7 @@ import psycopg
 import pytest
 
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
-from tests.faults import KeyedPost, create_model, fresh_postgres_database, model_invariants, post_keyed_once
+from tests.faults import KeyedPost, create_model, fresh_postgres_database, libpq_url, model_invariants, post_keyed_once
 from tests.servers import running_server
 
 pytestmark = pytest.mark.postgres
@@ -40,7 +40,7 @@ def test_a_lock_held_elsewhere_stalls_its_model_only(tmp_path: Path) -> None:
             for name in "ab":
                 for post in posts[name][:3]:
                     assert post_keyed_once(client, models[name], post).status_code == 201
-        outside = psycopg.connect(url.replace("postgresql+psycopg://", "postgresql://"), autocommit=False)
+        outside = psycopg.connect(libpq_url(url), autocommit=False)
         try:
             outside.execute("SELECT version FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (models["a"],))
             locked_at = time.monotonic()

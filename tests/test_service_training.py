@@ -13,10 +13,12 @@ import base64
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import Engine, text
+from sqlalchemy import Engine
+from sqlalchemy.orm import Session
 
 from core.features.layout import EFFECT_SIZE, ENTITY_SIZE
 from sim.world import World
+from storage.repositories.incremental_lda import stored_version
 from tests.conftest import synthetic_training_objects
 
 
@@ -175,13 +177,9 @@ def test_training_labels_are_checked(client: TestClient, model_id: str, training
     assert client.get(f"/v1/models/{model_id}/prototypes").status_code == 409
 
 
-def _stored_version(engine: Engine, model_id: str) -> int:
-    with engine.connect() as connection:
-        return int(
-            connection.execute(
-                text("SELECT version FROM incremental_lda_state WHERE model_id = :id"), {"id": model_id}
-            ).scalar_one()
-        )
+def _stored_version(engine: Engine, model_id: str) -> int | None:
+    with Session(engine) as session:
+        return stored_version(session, model_id)
 
 
 def test_a_keyed_training_batch_retried_is_answered_again_and_adds_nothing(

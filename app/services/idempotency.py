@@ -14,9 +14,10 @@ from pydantic import BaseModel
 from app.errors import IdempotencyKeyReused
 
 
-def request_digest(body: BaseModel) -> bytes:
-    """The SHA-256 digest (32 bytes) of ``body`` as validated (field order and whitespace do not count)."""
-    return hashlib.sha256(body.model_dump_json().encode()).digest()
+def request_digest(idempotency_key: str | None, body: BaseModel) -> bytes | None:
+    """The SHA-256 digest (32 bytes) of ``body`` as validated (field order and whitespace do not
+    count), which a keyed request stores; None without a key (nothing is stored)."""
+    return None if idempotency_key is None else hashlib.sha256(body.model_dump_json().encode()).digest()
 
 
 def check_retry(idempotency_key: str, stored_digest: bytes | None, request_hash: bytes | None) -> None:

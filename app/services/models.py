@@ -40,7 +40,7 @@ def create_model(
     with another body, 422 ``idempotency_key_reused``. Two creations with one key racing on two
     processes meet at the key's unique index: the later one's insert is undone (a savepoint) and
     it answers the earlier one's model."""
-    request_hash = None if idempotency_key is None else request_digest(body)
+    request_hash = request_digest(idempotency_key, body)
     if idempotency_key is not None:
         stored = model_repository.find_by_idempotency_key(session, idempotency_key)
         if stored is not None:

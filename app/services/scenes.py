@@ -124,7 +124,7 @@ def read_scene(model: ModelRuntime, body: SceneCreate, idempotency_key: str | No
     core's (a raw object's features extracted), without any lock. A refusal is kept, not raised:
     a retried scene's stored answer (Idempotency-Key) wins over it, as when the analysis ran under the lock."""
     perception = model.perception
-    request_hash = None if idempotency_key is None else request_digest(body)
+    request_hash = request_digest(idempotency_key, body)
     try:
         objects = scene_objects(perception, body.objects, model.id)
     except (ContextwebError, InvalidInputError) as refusal:

@@ -49,18 +49,18 @@ def add_training_objects(
     same key and body is answered as the batch first was, and adds nothing; another body is 422
     ``idempotency_key_reused``. The lookup is under the model's lock, so two processes cannot both
     add a batch of one key."""
-    keyed = None if idempotency_key is None else (idempotency_key, request_digest(body))
-    if keyed is not None:
-        stored = model_repository.find_training_batch(session, model.id, keyed[0])
+    request_hash = request_digest(idempotency_key, body)
+    if idempotency_key is not None:
+        stored = model_repository.find_training_batch(session, model.id, idempotency_key)
         if stored is not None:
-            check_retry(keyed[0], bytes(stored.request_hash), keyed[1])
+            check_retry(idempotency_key, bytes(stored.request_hash), request_hash)
             answer = TrainingBatchRead(added=stored.added, training_object_count=stored.training_object_count)
             return AddedBatch(answer, replayed=True)
     rows = [_training_row(model.vocabulary, obj, f"objects[{i}]") for i, obj in enumerate(body.objects)]
     model_repository.add_training_objects(session, model.id, rows)
     total = model.training_object_count + len(rows)
-    if keyed is not None:
-        model_repository.add_training_batch(session, model.id, *keyed, len(rows), total)
+    if idempotency_key is not None and request_hash is not None:
+        model_repository.add_training_batch(session, model.id, idempotency_key, request_hash, len(rows), total)
     model.writer.count_training_objects(total)
     return AddedBatch(TrainingBatchRead(added=len(rows), training_object_count=total), replayed=False)
 

@@ -17,7 +17,12 @@ Wake-ups: on PostgreSQL a dedicated connection ``LISTEN``s on the channel the
 writes notify, with a fallback read every ``fallback_interval`` seconds (a lost
 notification, a dropped connection: it reconnects with backoff); on SQLite the
 feed reads every ``poll_interval`` seconds. Models without local subscribers
-cost nothing. The thread never takes a model's lock.
+cost nothing, and a process without any holds no LISTEN connection: it is opened
+with the first local subscriber (and read at once, so nothing committed before
+the LISTEN is missed) and closed after the last. Otherwise every scene learned
+on any process would wake each process's feed thread and its listening backend
+for nothing (about 0.1 ms of CPU a scene each: docs/benchmarks.md). The thread
+never takes a model's lock.
 
 Positions: a cursor starts at the model's stored scene count when its first
 local subscriber arrives; a subscriber's hello reports the count of scenes
@@ -155,6 +160,9 @@ class SceneFeed:
         if not self._hub.subscriber_count(subscriber.model_id):
             with self._lock:
                 self._cursors.pop(subscriber.model_id, None)
+                last = not self._cursors
+            if last:
+                self._wake()  # the thread closes the LISTEN connection now, not at its next read
 
     # The event loop's side: deliveries the thread scheduled, in order.
 
@@ -207,7 +215,9 @@ class SceneFeed:
         """Wait for a reason to read, read if there is one; returns when the next read is due."""
         with self._lock:
             watched = bool(self._cursors)
-        notified, woken = self._wait(max(0.0, next_read - time.monotonic()) if watched else None)
+        if not watched and self._listener is not None:
+            self._listener.close()  # nobody watches: each notification would only wake the thread and its backend
+        notified, woken = self._wait(max(0.0, next_read - time.monotonic()) if watched else None, listen=watched)
         if self._stopping.is_set():
             return next_read
         with self._lock:
@@ -217,10 +227,11 @@ class SceneFeed:
             next_read = time.monotonic() + self.interval
         return next_read
 
-    def _wait(self, timeout: float | None) -> tuple[set[str], bool]:
-        """Until a notification, a wake or ``timeout`` (None: no limit): (notified model ids, woken)."""
+    def _wait(self, timeout: float | None, *, listen: bool) -> tuple[set[str], bool]:
+        """Until a notification (``listen``: on PostgreSQL, with the LISTEN connection opened if it is
+        not), a wake or ``timeout`` (None: no limit): (notified model ids, woken)."""
         sockets: list[Any] = [self._wake_receiver]
-        listener = self._listener
+        listener = self._listener if listen else None
         if listener is not None:
             if listener.ensure_connected(self.interval):
                 return set(), True  # notifications may have been lost while it was disconnected: read now

@@ -308,11 +308,38 @@ def test_notify_change_is_sent_at_commit_only(postgres_only: None, engine: Engin
     assert payloads == ["a", "b"]
 
 
-def test_the_listen_connection_is_named(postgres_only: None, client: TestClient, engine: Engine) -> None:
-    pid = wait_for(lambda: scene_feed(client).listener_backend_pid, "the feed to listen")
-    with engine.connect() as connection:
-        name = connection.scalar(text("SELECT application_name FROM pg_stat_activity WHERE pid = :pid"), {"pid": pid})
-    assert name == LISTEN_APPLICATION_NAME
+def test_the_feed_listens_only_while_a_stream_is_open(
+    postgres_only: None, client: TestClient, model_id: str, engine: Engine
+) -> None:
+    """No dashboard on the process: no LISTEN connection, so the fleet's scenes wake nothing here.
+    The first stream opens it (named in ``pg_stat_activity``), the last one's end closes it."""
+    feed = scene_feed(client)
+
+    def listening_backends() -> list[tuple[int, str]]:
+        query = text(
+            "SELECT pid, query FROM pg_stat_activity WHERE application_name = :name AND datname = current_database()"
+        )
+        with engine.connect() as connection:
+            return [tuple(row) for row in connection.execute(query, {"name": LISTEN_APPLICATION_NAME})]
+
+    bodies = concept_scenes(3, seed=21)
+    post_scene(client, model_id, bodies[0])
+    assert feed.listener_backend_pid is None
+    assert listening_backends() == []
+    with stream_of(client, model_id) as ws:
+        reader = StreamReader(ws)
+        assert reader.next()["scene_count"] == 1
+        pid = wait_for(lambda: feed.listener_backend_pid, "the feed to listen")
+        assert [backend for backend, _ in listening_backends()] == [pid]
+        answer = post_scene(client, model_id, bodies[1])
+        scene = reader.until_scenes(1)[-1]
+        assert (scene["scene_id"], scene["context_posterior"]) == (answer["scene_id"], answer["context_posterior"])
+    wait_for(lambda: feed.listener_backend_pid is None, "the feed to stop listening")
+    wait_for(lambda: listening_backends() == [], "the LISTEN backend to end")
+    post_scene(client, model_id, bodies[2])
+    with stream_of(client, model_id) as ws:  # listens again, from the stored count on
+        assert StreamReader(ws).next()["scene_count"] == 3
+        wait_for(lambda: feed.listener_backend_pid, "the feed to listen again")
 
 
 @pytest.mark.slow

@@ -21,7 +21,7 @@ cost nothing, and a process without any holds no LISTEN connection: it is opened
 with the first local subscriber (and read at once, so nothing committed before
 the LISTEN is missed) and closed after the last. Otherwise every scene learned
 on any process would wake each process's feed thread and its listening backend
-for nothing (about 0.1 ms of CPU a scene each: docs/benchmarks.md). The thread
+for nothing (with two workers, 0.4 ms of CPU a scene: docs/benchmarks.md). The thread
 never takes a model's lock.
 
 Positions: a cursor starts at the model's stored scene count when its first

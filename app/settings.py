@@ -11,6 +11,7 @@ from typing import Literal
 
 from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
+from sqlalchemy.engine import make_url
 
 from storage.database import DEFAULT_DATABASE_URL
 
@@ -74,11 +75,11 @@ class Settings(BaseSettings):
         description="Threads the admitted model writes share, apart from `worker_threads` (docs/operations.md).",
     )
     scene_threads: int = Field(
-        1,
-        ge=1,
+        0,
+        ge=0,
         description="Threads that learn scenes at once, apart from the write threads (which extract a raw scene's "
-        "features first, and wait for a model's lock held by another process): a second one only takes the "
-        "GIL from the first (docs/scaling.md).",
+        "features first, and wait for a model's lock held by another process); 0: the database's default, "
+        "1 on SQLite and 2 on PostgreSQL (docs/scaling.md says why).",
     )
     worker_threads: int = Field(16, ge=1, description="Threads running the blocking routes (numba, database).")
     model_write_queue: int = Field(
@@ -140,6 +141,15 @@ class Settings(BaseSettings):
     def _normalise_origins(cls, origins: list[str]) -> list[str]:
         """As browsers send them (RFC 6454 serialisation): lower case, no trailing slash."""
         return [normalise_origin(origin) for origin in origins]
+
+    @model_validator(mode="after")
+    def _default_scene_threads(self) -> Settings:
+        """0 scene threads: 2 on PostgreSQL, where a second thread learns a scene while the first
+        waits for its commit; 1 on SQLite, where the process's writes take turns on one write lock
+        anyway, so a second thread only takes the GIL from the first (docs/scaling.md)."""
+        if self.scene_threads == 0:
+            self.scene_threads = 2 if make_url(self.resolved_database_url).get_backend_name() == "postgresql" else 1
+        return self
 
     @model_validator(mode="after")
     def _refuse_unsafe_keys(self) -> Settings:

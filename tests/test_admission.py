@@ -26,7 +26,7 @@ import httpx
 import pytest
 from fastapi.testclient import TestClient
 
-from app.admission import Admission, Postponed, client_identity
+from app.admission import Admission, Postponed, admission_of, client_identity
 from app.errors import ModelBusy, RateLimited
 from app.main import create_app
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, make_settings, migrated_database
@@ -189,10 +189,13 @@ def test_a_postponed_scene_waits_on_a_write_thread_and_frees_the_scene_thread() 
     assert set(threads) == {"A tried", "A resumed", "B"}
 
 
-def test_one_scene_thread_by_default_on_both_databases() -> None:
+def test_scene_threads_by_default_one_on_sqlite_and_two_on_postgresql() -> None:
     assert make_settings("sqlite:///unused.sqlite3").scene_threads == 1
-    assert make_settings("postgresql+psycopg://localhost/unused", write_threads=3).scene_threads == 1
+    assert make_settings("postgresql+psycopg://localhost/unused", write_threads=3).scene_threads == 2
+    assert make_settings("postgresql://localhost/unused").scene_threads == 2
     assert make_settings("sqlite:///unused.sqlite3", scene_threads=2).scene_threads == 2
+    assert make_settings("postgresql+psycopg://localhost/unused", scene_threads=1).scene_threads == 1
+    assert admission_of(make_settings("postgresql+psycopg://localhost/unused")).scene_threads.total_tokens == 2
 
 
 def test_queue_bounded_in_bytes_but_one_write_may_always_wait() -> None:

@@ -110,7 +110,7 @@ class ScalingServer(Server):
     """SQLite's ``synchronous`` for every server of the run (``--sqlite-synchronous``): FULL, the
     default, makes each scene's commit wait for a WAL fsync under the database's one write lock."""
 
-    def __init__(self, database_url: str, log: Path, workers: int = 1) -> None:
+    def __init__(self, database_url: str, log: Path, workers: int = 1, project: Path = PROJECT) -> None:
         with socket.socket() as probe:
             probe.bind(("127.0.0.1", 0))
             self.port = probe.getsockname()[1]
@@ -122,15 +122,16 @@ class ScalingServer(Server):
             "CONTEXTWEB_DATABASE_URL": database_url,
             "CONTEXTWEB_PORT": str(self.port),
             "CONTEXTWEB_SQLITE_SYNCHRONOUS": self.sqlite_synchronous,
+            "PYTHONPATH": str(project),  # another checkout's code (bench/compare.py), not the installed one's
         }
         # As `make run` and the container do: `contextweb migrate`, then `contextweb serve`.
         migrate = [sys.executable, "-m", "app.cli", "migrate"]
-        subprocess.run(migrate, cwd=PROJECT, env=env, stdout=log.open("ab"), stderr=subprocess.STDOUT, check=True)
+        subprocess.run(migrate, cwd=project, env=env, stdout=log.open("ab"), stderr=subprocess.STDOUT, check=True)
         # "info" adds only start-up and shutdown lines (no access log): they tell when each worker is up.
         command = [sys.executable, "-m", "app.cli", "serve", "--log-level", "info", "--workers", str(workers)]
         self._log_start = log.stat().st_size if log.exists() else 0
         started = time.perf_counter()
-        self.process = subprocess.Popen(command, cwd=PROJECT, env=env, stdout=log.open("ab"), stderr=subprocess.STDOUT)
+        self.process = subprocess.Popen(command, cwd=project, env=env, stdout=log.open("ab"), stderr=subprocess.STDOUT)
         deadline = time.monotonic() + 240
         while time.monotonic() < deadline and self.process.poll() is None:
             if self._log_text().count("Application startup complete") >= workers:

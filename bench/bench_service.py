@@ -378,19 +378,20 @@ def run_backend(database_url: str, log: Path, data: dict[str, Any], sizes: dict[
     }
 
 
-def _fresh_postgres() -> str | None:
+def _fresh_postgres(database: str = POSTGRES_DATABASE) -> str | None:
+    """The URL of ``database``, dropped and created empty; None (saying so) without a server."""
     try:
         admin = create_engine(
             f"{POSTGRES_SERVER}/postgres", isolation_level="AUTOCOMMIT", connect_args={"connect_timeout": 3}
         )
         with admin.connect() as connection:
-            connection.execute(text(f'DROP DATABASE IF EXISTS "{POSTGRES_DATABASE}" WITH (FORCE)'))
-            connection.execute(text(f'CREATE DATABASE "{POSTGRES_DATABASE}"'))
+            connection.execute(text(f'DROP DATABASE IF EXISTS "{database}" WITH (FORCE)'))
+            connection.execute(text(f'CREATE DATABASE "{database}"'))
         admin.dispose()
     except Exception as error:  # noqa: BLE001 - no server: the PostgreSQL part is skipped, saying so
         print(f"PostgreSQL not reachable at {POSTGRES_SERVER} ({type(error).__name__}): skipped")
         return None
-    return f"{POSTGRES_SERVER}/{POSTGRES_DATABASE}"
+    return f"{POSTGRES_SERVER}/{database}"
 
 
 def _report(name: str, result: dict[str, Any], references: dict[str, float]) -> None:

@@ -60,9 +60,9 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, float]:
     """Median scenes/s and CPU a scene (ms, by group) of one side's rounds."""
     cpu = [row["cpu_ms_per_scene"] for row in rows]
     return {
-        "scenes_per_second": statistics.median(row["scenes_per_second"] for row in rows),
-        **{f"{group}_ms": statistics.median(item[group] for item in cpu) for group in ("server", "total")},
-        "cores_busy": statistics.median(item["cores_busy"] for item in cpu),
+        "scenes_per_second": round(statistics.median(row["scenes_per_second"] for row in rows), 1),
+        **{f"{group}_ms": round(statistics.median(item[group] for item in cpu), 3) for group in ("server", "total")},
+        "cores_busy": round(statistics.median(item["cores_busy"] for item in cpu), 2),
     }
 
 

@@ -22,6 +22,12 @@ def test_pairs_won_counts_the_rounds_where_b_was_ahead() -> None:
 def test_summary_takes_medians() -> None:
     rows = [
         {"scenes_per_second": speed, "cpu_ms_per_scene": {"server": server, "total": total, "cores_busy": busy}}
-        for speed, server, total, busy in [(400.0, 3.5, 4.4, 1.7), (420.0, 3.3, 4.2, 1.8), (380.0, 3.7, 4.6, 1.6)]
+        for speed, server, total, busy in [
+            (400.1, 3.5, 4.4, 1.7),
+            (420.0, 3.3, 4.2, 1.8),
+            (380.0, 3.7, 4.6, 1.6),
+            (401.0, 3.4, 4.3, 1.7),
+        ]
     ]
-    assert summary(rows) == {"scenes_per_second": 400.0, "server_ms": 3.5, "total_ms": 4.4, "cores_busy": 1.7}
+    # Medians of an even count are means of the middle two, rounded as the report shows them.
+    assert summary(rows) == {"scenes_per_second": 400.6, "server_ms": 3.45, "total_ms": 4.35, "cores_busy": 1.7}

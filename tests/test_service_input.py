@@ -60,6 +60,32 @@ def test_a_bad_scene_is_a_422_naming_the_field(client: TestClient, model_id: str
     assert response.json()["error"] == "invalid_input" and response.json()["detail"]
 
 
+@pytest.mark.parametrize(
+    ("body", "field", "problem"),
+    [
+        (
+            _scene({"concepts": "cup"}),
+            "objects[0].concepts",
+            "an array of names or an object of names to probabilities",
+        ),
+        (
+            _scene({"raw": {"look": {"points": {"x": 1.0}}}}),
+            "objects[0].raw.look.points",
+            "a JSON array or a base64 string of little-endian float32 values",
+        ),
+    ],
+)
+def test_a_field_of_two_shapes_given_neither_says_which_it_takes(
+    client: TestClient, model_id: str, body: dict, field: str, problem: str
+) -> None:
+    """Not pydantic's words for its union of two shapes (``Input tag 'as base64' found using _shape()``)."""
+    response = client.post(f"/v1/models/{model_id}/scenes", json=body)
+    assert response.status_code == 422, response.text
+    assert response.json()["field"] == field
+    detail = response.json()["detail"]
+    assert problem in detail and "tag" not in detail and "_shape" not in detail, detail
+
+
 @pytest.mark.parametrize(("text", "position"), [('{"objects": [{"concepts": ["cup"]', 33), ("{objects", 1)])
 def test_a_body_that_is_not_json_is_a_422_on_the_body_saying_where(
     client: TestClient, model_id: str, text: str, position: int

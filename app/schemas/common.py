@@ -26,10 +26,26 @@ Probabilities = TypeVar("Probabilities")
 Array = TypeVar("Array")
 Base64 = TypeVar("Base64")
 
-#: ``ListOrMap[Names, Probabilities]``: ``Names | Probabilities`` told apart by the JSON shape (array or object).
-ListOrMap = Annotated[Annotated[Names, Tag(AS_LIST)] | Annotated[Probabilities, Tag(AS_MAP)], Discriminator(_shape)]
-#: ``ArrayOrBase64[Array, Base64]``: ``Array | Base64`` told apart by the JSON shape (array or string).
-ArrayOrBase64 = Annotated[Annotated[Array, Tag(AS_LIST)] | Annotated[Base64, Tag(AS_BASE64)], Discriminator(_shape)]
+#: ``ListOrMap[Names, Probabilities]``: ``Names | Probabilities`` told apart by the JSON shape (array or object);
+#: any other shape (a string, a number) is refused with what the field takes, not pydantic's tag names.
+ListOrMap = Annotated[
+    Annotated[Names, Tag(AS_LIST)] | Annotated[Probabilities, Tag(AS_MAP)],
+    Discriminator(
+        _shape,
+        custom_error_type="list_or_map_type",
+        custom_error_message="Input should be an array of names or an object of names to probabilities",
+    ),
+]
+#: ``ArrayOrBase64[Array, Base64]``: ``Array | Base64`` told apart by the JSON shape (array or string);
+#: an object is refused with what the field takes.
+ArrayOrBase64 = Annotated[
+    Annotated[Array, Tag(AS_LIST)] | Annotated[Base64, Tag(AS_BASE64)],
+    Discriminator(
+        _shape,
+        custom_error_type="array_or_base64_type",
+        custom_error_message="Input should be a JSON array or a base64 string of little-endian float32 values",
+    ),
+]
 
 
 #: A probability in [0, 1].

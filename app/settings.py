@@ -12,8 +12,9 @@ from typing import Literal
 from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 from sqlalchemy.engine import make_url
+from sqlalchemy.exc import ArgumentError
 
-from storage.database import DEFAULT_DATABASE_URL
+from storage.database import DEFAULT_DATABASE_URL, is_sqlite
 
 LOOPBACK_HOSTS = frozenset({"127.0.0.1", "::1", "localhost"})
 
@@ -22,6 +23,9 @@ def normalise_origin(origin: str) -> str:
     """An ``Origin`` value in the form it is compared in: trimmed, lower case, no trailing slash."""
     return origin.strip().rstrip("/").lower()
 
+
+#: The databases the models can be stored in (SQLAlchemy backend names; ``postgres`` is ``postgresql``'s alias).
+DATABASE_BACKENDS = ("postgresql", "postgres", "sqlite")
 
 #: Scenes between two checkpoints of a model (docs/scaling.md, "Checkpoints", says why this many).
 DEFAULT_CHECKPOINT_INTERVAL = 10_000
@@ -142,13 +146,30 @@ class Settings(BaseSettings):
         """As browsers send them (RFC 6454 serialisation): lower case, no trailing slash."""
         return [normalise_origin(origin) for origin in origins]
 
+    @field_validator("database_url")
+    @classmethod
+    def _check_database_url(cls, url: str | None) -> str | None:
+        """A URL of one of the two databases the models are stored in (the URL is not repeated: it
+        may hold a password)."""
+        if not url:  # unset, or set empty (as a compose file's ${VAR:-} gives): the default
+            return None
+        try:
+            backend = make_url(url).get_backend_name()
+        except ArgumentError:
+            raise ValueError(
+                "cannot be read as a database URL; expected postgresql://USER@HOST:PORT/NAME or sqlite:///PATH"
+            ) from None
+        if backend not in DATABASE_BACKENDS:
+            raise ValueError(f"models are stored in PostgreSQL or SQLite, not {backend!r}")
+        return url
+
     @model_validator(mode="after")
     def _default_scene_threads(self) -> Settings:
         """0 scene threads: 2 on PostgreSQL, where a second thread learns a scene while the first
         waits for its commit; 1 on SQLite, where the process's writes take turns on one write lock
         anyway, so a second thread only takes the GIL from the first (docs/scaling.md)."""
         if self.scene_threads == 0:
-            self.scene_threads = 2 if make_url(self.resolved_database_url).get_backend_name() == "postgresql" else 1
+            self.scene_threads = 1 if is_sqlite(self.resolved_database_url) else 2
         return self
 
     @model_validator(mode="after")

@@ -83,6 +83,38 @@ def test_invalid_settings_are_one_line_each_and_exit_78() -> None:
     ], result.stderr
 
 
+@pytest.mark.parametrize(
+    ("url", "problem"),
+    [
+        ("robot:secret@fleet-db/contextweb", "cannot be read as a database URL"),
+        ("mysql://robot:secret@fleet-db/contextweb", "models are stored in PostgreSQL or SQLite, not 'mysql'"),
+    ],
+)
+def test_a_database_url_that_is_not_one_of_ours_is_one_line_and_exit_78(url: str, problem: str) -> None:
+    """Not a traceback from SQLAlchemy's parser or a missing MySQL driver; the URL (its password) not echoed."""
+    result = subprocess.run(
+        [sys.executable, "-m", "app.cli", "serve"],
+        capture_output=True,
+        text=True,
+        env=_environment(CONTEXTWEB_DATABASE_URL=url),
+        timeout=120,
+        check=False,
+    )
+    assert result.returncode == 78 and "Traceback" not in result.stderr and "secret" not in result.stderr
+    (line,) = result.stderr.splitlines()
+    assert line.startswith("contextweb serve: CONTEXTWEB_DATABASE_URL: ") and problem in line, line
+
+
+def test_an_empty_database_url_means_the_default() -> None:
+    from storage.database import DEFAULT_DATABASE_URL
+    from tests.conftest import make_settings
+
+    settings = make_settings("")
+    assert settings.database_url is None and settings.resolved_database_url == DEFAULT_DATABASE_URL
+    assert settings.scene_threads == 1
+    assert make_settings("postgres://robot@fleet-db/contextweb").scene_threads == 2  # postgresql's alias
+
+
 def test_migrate_needs_no_keys_in_production(tmp_path: Path) -> None:
 
     url = f"sqlite:///{tmp_path / 'contextweb.sqlite3'}"

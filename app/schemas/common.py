@@ -26,25 +26,22 @@ Probabilities = TypeVar("Probabilities")
 Array = TypeVar("Array")
 Base64 = TypeVar("Base64")
 
-#: ``ListOrMap[Names, Probabilities]``: ``Names | Probabilities`` told apart by the JSON shape (array or object);
-#: any other shape (a string, a number) is refused with what the field takes, not pydantic's tag names.
+
+def _by_shape(error_type: str, takes: str) -> Discriminator:
+    """The union's member picked by the JSON shape (:func:`_shape`); any other shape is refused
+    with what the field takes, not with pydantic's tag names."""
+    return Discriminator(_shape, custom_error_type=error_type, custom_error_message=f"Input should be {takes}")
+
+
+#: ``ListOrMap[Names, Probabilities]``: ``Names | Probabilities`` told apart by the JSON shape (array or object).
 ListOrMap = Annotated[
     Annotated[Names, Tag(AS_LIST)] | Annotated[Probabilities, Tag(AS_MAP)],
-    Discriminator(
-        _shape,
-        custom_error_type="list_or_map_type",
-        custom_error_message="Input should be an array of names or an object of names to probabilities",
-    ),
+    _by_shape("list_or_map_type", "an array of names or an object of names to probabilities"),
 ]
-#: ``ArrayOrBase64[Array, Base64]``: ``Array | Base64`` told apart by the JSON shape (array or string);
-#: an object is refused with what the field takes.
+#: ``ArrayOrBase64[Array, Base64]``: ``Array | Base64`` told apart by the JSON shape (array or string).
 ArrayOrBase64 = Annotated[
     Annotated[Array, Tag(AS_LIST)] | Annotated[Base64, Tag(AS_BASE64)],
-    Discriminator(
-        _shape,
-        custom_error_type="array_or_base64_type",
-        custom_error_message="Input should be a JSON array or a base64 string of little-endian float32 values",
-    ),
+    _by_shape("array_or_base64_type", "a JSON array or a base64 string of little-endian float32 values"),
 ]
 
 

@@ -215,8 +215,6 @@ class SceneFeed:
         """Wait for a reason to read, read if there is one; returns when the next read is due."""
         with self._lock:
             watched = bool(self._cursors)
-        if not watched and self._listener is not None:
-            self._listener.close()  # nobody watches: each notification would only wake the thread and its backend
         notified, woken = self._wait(max(0.0, next_read - time.monotonic()) if watched else None, listen=watched)
         if self._stopping.is_set():
             return next_read
@@ -229,9 +227,13 @@ class SceneFeed:
 
     def _wait(self, timeout: float | None, *, listen: bool) -> tuple[set[str], bool]:
         """Until a notification (``listen``: on PostgreSQL, with the LISTEN connection opened if it is
-        not), a wake or ``timeout`` (None: no limit): (notified model ids, woken)."""
+        not; else closed, as nobody watches), a wake or ``timeout`` (None: no limit): (notified model
+        ids, woken)."""
         sockets: list[Any] = [self._wake_receiver]
-        listener = self._listener if listen else None
+        listener = self._listener
+        if listener is not None and not listen:
+            listener.close()  # each notification would only wake this thread and its backend
+            listener = None
         if listener is not None:
             if listener.ensure_connected(self.interval):
                 return set(), True  # notifications may have been lost while it was disconnected: read now

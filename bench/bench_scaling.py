@@ -166,6 +166,19 @@ class ScalingServer(Server):
         ]
 
 
+def training_features(world: World) -> dict[str, Any]:
+    """Entity and effect vectors of the world's training objects (an object's recording is
+    independent of the others, so only theirs are recorded)."""
+    recordings = world.recordings(world.train_objects, seed=0)
+    return {key: recording_features(_decimated(recording)) for key, recording in recordings.items()}
+
+
+def trained_models(server: ScalingServer, train: list[dict]) -> list[str]:
+    """One model per client on ``server``, each fitted to ``train`` with the ``SERVING`` hyperparameters."""
+    with httpx.Client(base_url=server.url, timeout=300) as client, ThreadPoolExecutor(2) as pool:
+        return list(pool.map(lambda _: _trained_model(client, train, SERVING), range(CLIENTS)))
+
+
 def _start(specs: list[tuple[str, Path, int]]) -> list[ScalingServer]:
     """Several servers started concurrently (a start-up mostly waits: docs/benchmarks.md has how long)."""
     with ThreadPoolExecutor(len(specs)) as pool:
@@ -558,8 +571,7 @@ def run_backend(
         result["server_start_seconds"]["a"] = a.start_seconds
         phase("models")
         started = time.perf_counter()
-        with httpx.Client(base_url=a.url, timeout=300) as client, ThreadPoolExecutor(2) as pool:
-            models = list(pool.map(lambda _: _trained_model(client, data["train"], SERVING), range(CLIENTS)))
+        models = trained_models(a, data["train"])
         result["setup_seconds"]["train_8_models"] = round(time.perf_counter() - started, 1)
         started = time.perf_counter()
         _spread([(a, model) for model in models], [data["warmup"]] * CLIENTS)
@@ -726,8 +738,7 @@ def main() -> dict:
         )
         world = World.paper(0)
         started = time.perf_counter()
-        recordings = world.recordings(world.train_objects, seed=0)  # an object's recording is independent of the others
-        features = {key: recording_features(_decimated(recording)) for key, recording in recordings.items()}
+        features = training_features(world)
         print(f"features of {len(features)} training objects in {time.perf_counter() - started:.0f} s", flush=True)
         train = training_objects(world, features)
         data = {

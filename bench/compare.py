@@ -25,24 +25,11 @@ import statistics
 import subprocess
 import sys
 import tempfile
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-import httpx
-
-from bench.bench_scaling import CLIENTS, ScalingServer, _spread
-from bench.bench_service import (
-    BIRTH_CHECK_INTERVAL,
-    PROJECT,
-    SERVING,
-    _decimated,
-    _fresh_postgres,
-    _trained_model,
-    concept_scenes,
-    training_objects,
-)
-from core.features.extract import recording_features
+from bench.bench_scaling import CLIENTS, ScalingServer, _spread, trained_models, training_features
+from bench.bench_service import BIRTH_CHECK_INTERVAL, PROJECT, _fresh_postgres, concept_scenes, training_objects
 from sim.world import World
 
 
@@ -80,8 +67,7 @@ def main() -> dict[str, Any]:
     servers: dict[str, tuple[ScalingServer, list[str], str | None]] = {}
     try:
         world = World.paper(0)
-        recordings = world.recordings(world.train_objects, seed=0)
-        train = training_objects(world, {key: recording_features(_decimated(r)) for key, r in recordings.items()})
+        train = training_objects(world, training_features(world))
         warmup = concept_scenes(world, BIRTH_CHECK_INTERVAL, seed=1)
         scenes = concept_scenes(world, args.scenes, seed=2)
         parts = [scenes[i::CLIENTS] for i in range(CLIENTS)]
@@ -94,10 +80,10 @@ def main() -> dict[str, Any]:
             else:
                 url, database = f"sqlite:///{folder / name}.sqlite3", None
             server = ScalingServer(url, folder / f"{name}.log", args.workers, project=project)
-            servers[name] = (server, [], database)
-            with httpx.Client(base_url=server.url, timeout=300) as client, ThreadPoolExecutor(2) as pool:
-                servers[name][1].extend(pool.map(lambda _: _trained_model(client, train, SERVING), range(CLIENTS)))
-            _spread([(server, model) for model in servers[name][1]], [warmup] * CLIENTS)
+            models: list[str] = []
+            servers[name] = (server, models, database)  # stopped in ``finally`` even if training fails
+            models.extend(trained_models(server, train))
+            _spread([(server, model) for model in models], [warmup] * CLIENTS)
         results: dict[str, list[dict[str, Any]]] = {"A": [], "B": []}
         for number, order in enumerate(rounds_order(args.rounds)):
             for name in order:

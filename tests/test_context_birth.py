@@ -17,6 +17,8 @@ import pytest
 
 from bench.bench_context_birth import SCENARIOS, birth_run, steady_run
 from core.context import IncrementalLDA
+from core.context.k_selection import ScenesSettings
+from core.context.k_selection.base import NOVELTY_MIN_WINDOW
 from core.context.lda import LDAState
 from sim.world import WorldConfig, generate_scenes
 
@@ -33,6 +35,42 @@ def test_a_late_context_is_found_within_five_scenes_at_the_median(late_runs: lis
     delays = [math.inf if run.delay is None else run.delay for run in late_runs]
     assert statistics.median(delays) <= 5, delays
     assert sum(run.delay is None for run in late_runs) <= 6 * len(late_runs) // 100, delays
+
+
+def test_a_late_context_is_found_within_five_scenes_in_most_runs(late_runs: list) -> None:
+    """Within 5 scenes of its first appearance (the issue's goal, in stream scenes): in 88.3 % of 900
+    runs on seeds 1000-1059, 2000-2059 and 3000-3059, against 72.7 % when every novelty-triggered
+    check decided on the last 20 scenes (docs/context.md). 80 of 100 fails at 88.3 % with
+    probability under 1 % (binomial), and at 72.7 % with probability 95 %."""
+    delays = [run.delay for run in late_runs]
+    assert sum(delay is not None and delay <= 5 for delay in delays) >= 80 * len(late_runs) // 100, delays
+
+
+def test_a_novelty_check_decides_on_the_scenes_since_the_earliest_novel_one() -> None:
+    """The window of a check that a novel scene triggers: from the earliest scene of the last
+    ``novelty_window`` that was itself novel against the contexts before them, else the last
+    NOVELTY_MIN_WINDOW scenes. (K held at 1 while learning, so that the workshop scene stays in
+    the kitchen's context and the rule alone is seen.)"""
+    model = IncrementalLDA(seed=0, max_contexts=1)
+    rule = ScenesSettings().make_rule()
+    kitchen, workshop = ["cup", "plate", "grasp", "cup", "spoon"], ["hammer", "nail", "hammer", "push", "saw"]
+    for _ in range(40):
+        model.learn_scene(kitchen)
+    state = model.lda_state
+    model._add_concepts(workshop)
+    workshop_ids, kitchen_ids = model._ids(workshop), model._ids(kitchen)
+    assert rule.growth_window(state, kitchen_ids) is None
+    assert rule.growth_window(state, workshop_ids) == state.n_documents + 1 - NOVELTY_MIN_WINDOW
+    model.learn_scene(workshop)
+    first_workshop = state.n_documents - 1
+    for _ in range(6):
+        model.learn_scene(kitchen)
+    assert state.first_novel_scene(state.n_documents - 15, 1.0) == first_workshop
+    assert state.first_novel_scene(first_workshop + 1, 1.0) is None
+    assert rule.growth_window(state, workshop_ids) == first_workshop
+    for _ in range(20):  # the workshop scene has left the last novelty_window scenes
+        model.learn_scene(kitchen)
+    assert rule.growth_window(state, workshop_ids) == state.n_documents + 1 - NOVELTY_MIN_WINDOW
 
 
 def test_late_contexts_rarely_open_a_context_that_is_not_there(late_runs: list) -> None:

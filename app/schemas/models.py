@@ -68,7 +68,8 @@ class _KRuleBase(RequestSchema):
     novelty_window: int = _count(
         20,
         "Online: a scene that a fresh context explains better than every context held before the last "
-        "this-many scenes triggers a growth check on the last this-many scenes, itself included.",
+        "this-many scenes triggers a growth check on those scenes from the earliest that was novel in the "
+        "same sense (at least the last 5), itself included.",
     )
     scene_prior_strength: Concentration = Field(
         default=1.0,

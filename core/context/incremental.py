@@ -13,7 +13,7 @@ of Eq. 5's model), then its tokens are sampled for ``scene_sweeps`` sweeps, each
 2009), and growth is checked only on a window of the last scenes, scoring the
 window given the scenes before it: on the last ``birth_window`` scenes after each
 of the first ``birth_check_interval`` scenes and after 2, 4, 8, ... times that many;
-on the last ``novelty_window`` scenes after a scene that a fresh context explains
+on the recent scenes from the earliest novel one after a scene that a fresh context explains
 better than every existing one (novelty, :meth:`LDAState.scene_novelty`), so that a
 new context is found within a few scenes of its first (docs/context.md, "When
 growth is checked online"; :meth:`core.context.k_selection.KRule.growth_window`). So an update

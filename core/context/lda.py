@@ -376,6 +376,16 @@ class LDAState:
             )
         )  # fmt: skip
 
+    def first_novel_scene(self, first_doc: int, strength: float) -> int | None:
+        """The earliest of scenes ``first_doc:`` that is novel by :meth:`scene_novelty` against the
+        contexts without scenes ``first_doc:`` (its own tokens among them), or None. Where a
+        novelty-triggered growth check starts (:meth:`KRule.growth_window`)."""
+        offsets = self._offsets
+        for scene in range(first_doc, self.n_documents):
+            if self.scene_novelty(self._words[offsets[scene] : offsets[scene + 1]], first_doc, strength) > 0.0:
+                return scene
+        return None
+
     def add_scene_online(
         self, word_ids: np.ndarray, rng: np.random.Generator, sweeps: int, rejuvenation_tokens: int
     ) -> tuple[int, np.ndarray, np.ndarray]:

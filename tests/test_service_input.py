@@ -115,6 +115,41 @@ def test_a_json_body_sent_as_text_is_a_422_saying_which_content_type(client: Tes
     assert response.json()["field"] == "body" and "Content-Type: application/json" in response.json()["detail"]
 
 
+@pytest.mark.parametrize(
+    ("path", "body", "field"),
+    [
+        ("scenes", _scene({"concepts": {"cup": True}}), "objects[0].concepts.cup"),
+        ("scenes", _scene({"concepts": {"cup": "0.5"}}), "objects[0].concepts.cup"),
+        ("scenes", _scene({"concepts": [7]}), "objects[0].concepts[0]"),
+        ("scenes", _scene({"features": {"entity": ["0.5", *ENTITY[1:]]}}), "objects[0].features.entity[0]"),
+        ("models", {"name": "m", "seed": "3"}, "seed"),
+        ("models", {"name": "m", "seed": 3.0}, "seed"),
+        ("models", {"name": 12}, "name"),
+        ("models", {"name": "m", "hyperparameters": {"sampler": {"sweeps": "12"}}}, "hyperparameters.sampler.sweeps"),
+        ("models", {"name": "m", "hyperparameters": {"priors": {"alpha": False}}}, "hyperparameters.priors.alpha"),
+    ],
+)
+def test_a_value_of_another_json_type_is_refused_not_converted(
+    client: TestClient, model_id: str, path: str, body: dict, field: str
+) -> None:
+    """Strict types (``RequestSchema``): a boolean or a string where a number belongs is a client's
+    bug that a lax conversion would hide (``true`` would have been learned as probability 1)."""
+    url = f"/v1/models/{model_id}/scenes" if path == "scenes" else "/v1/models"
+    response = client.post(url, json=body)
+    assert response.status_code == 422, response.text
+    assert response.json()["field"] == field and response.json()["error"] == "invalid_input"
+
+
+def test_whole_numbers_are_numbers_and_arrays_are_pairs(client: TestClient, model_id: str) -> None:
+    """What strict mode still takes: an integer probability, and a vocabulary's adjective pairs as
+    JSON arrays (the schema's tuples)."""
+    response = client.post(f"/v1/models/{model_id}/scenes", json=_scene({"concepts": {"cup": 1, "plate": 0}}))
+    assert response.status_code == 201, response.text
+    vocabulary = {"nouns": ["cup"], "adjective_pairs": [["hard", "soft"]], "verbs": ["grasp"]}
+    response = client.post("/v1/models", json={"name": "m", "vocabulary": vocabulary})
+    assert response.status_code == 201, response.text
+
+
 def test_nan_and_infinity_are_refused(client: TestClient, model_id: str) -> None:
     for literal in ("NaN", "Infinity", "-Infinity"):
         entity = ", ".join([literal] + ["0.0"] * 90)

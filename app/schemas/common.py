@@ -58,9 +58,13 @@ class ReadSchema(BaseModel):
 
 
 class RequestSchema(BaseModel):
-    """Base of the request bodies: unknown fields are a 422, not silently dropped."""
+    """Base of the request bodies: unknown fields are a 422, not silently dropped, and so is a value
+    of another JSON type than the field's, which pydantic's lax mode would convert (``true`` or
+    ``"0.5"`` for a probability, ``"12"`` for a count): strict mode. A whole number is still a
+    number (``1`` for a probability); a field typed as a tuple says ``Field(strict=False)``, since
+    JSON has only arrays."""
 
-    model_config = ConfigDict(extra="forbid", protected_namespaces=())
+    model_config = ConfigDict(extra="forbid", protected_namespaces=(), strict=True)
 
 
 class ErrorRead(ReadSchema):

@@ -171,7 +171,7 @@ class VocabularySchema(RequestSchema):
     """The concepts of a world (§III): nouns, dichotomic adjective pairs, verbs (= behaviours)."""
 
     nouns: list[Name] = Field(min_length=1, max_length=MAX_CONCEPTS_PER_KIND)
-    adjective_pairs: list[tuple[Name, Name]] = Field(max_length=MAX_CONCEPTS_PER_KIND)
+    adjective_pairs: list[Annotated[tuple[Name, Name], Field(strict=False)]] = Field(max_length=MAX_CONCEPTS_PER_KIND)
     verbs: list[Name] = Field(max_length=MAX_CONCEPTS_PER_KIND)
 
 

@@ -300,7 +300,8 @@ def _located(error: dict[str, Any]) -> dict[str, Any]:
         return {**error, "msg": "not read as JSON: send a JSON object with Content-Type: application/json"}
     if error.get("type") != "json_invalid":
         return error
-    position = next((part for part in error["loc"][1:] if isinstance(part, int)), None)
+    # A repeated key has no position (app/routing.py: NO_POSITION).
+    position = next((part for part in error["loc"][1:] if isinstance(part, int) and part >= 0), None)
     reason = (error.get("ctx") or {}).get("error", "")
     where = f" at character {position}" if position is not None else ""
     return {**error, "loc": ("body",), "msg": f"not valid JSON{where}" + (f" ({reason})" if reason else "")}

@@ -7,9 +7,11 @@ import json
 
 import numpy as np
 import pytest
+from fastapi.routing import APIRoute
 from fastapi.testclient import TestClient
 
 from app.main import create_app
+from app.routing import JsonBodyRoute
 from tests.conftest import make_settings
 
 ENTITY = [0.0] * 91
@@ -95,6 +97,49 @@ def test_a_body_that_is_not_json_is_a_422_on_the_body_saying_where(
     assert response.json()["field"] == "body"
     assert response.json()["detail"].startswith(f"body: not valid JSON at character {position} (")
     assert client.get(f"/v1/models/{model_id}").json()["scene_count"] == 0
+
+
+@pytest.mark.parametrize(
+    ("path", "text", "key"),
+    [
+        ("scenes", '{"objects": [{"concepts": {"cup": 0.2, "plate": 1, "cup": 0.9}}]}', '"cup"'),
+        ("scenes", '{"objects": [{"concepts": ["cup"]}], "objects": [{"concepts": ["plate"]}]}', '"objects"'),
+        ("models", '{"name": "a", "seed": 1, "name": "b"}', '"name"'),
+    ],
+)
+def test_a_key_given_twice_in_one_object_is_a_422_on_the_body_naming_it(
+    client: TestClient, model_id: str, path: str, text: str, key: str
+) -> None:
+    """Python's parser would keep the last value silently (app/routing.py)."""
+    url = f"/v1/models/{model_id}/scenes" if path == "scenes" else "/v1/models"
+    models_before = len(client.get("/v1/models").json())
+    response = client.post(url, content=text, headers={"Content-Type": "application/json"})
+    assert response.status_code == 422, response.text
+    assert response.json()["field"] == "body"
+    assert response.json()["detail"] == f"body: not valid JSON (the key {key} appears twice in one object)"
+    assert client.get(f"/v1/models/{model_id}").json()["scene_count"] == 0
+    assert len(client.get("/v1/models").json()) == models_before
+    # The same key in two different objects is not a repeat.
+    response = client.post(f"/v1/models/{model_id}/scenes", json=_scene({"concepts": ["cup"]}, {"concepts": ["cup"]}))
+    assert response.status_code == 201, response.text
+
+
+def _api_routes(routes: list) -> list[APIRoute]:
+    """The API routes, also those of included routers (FastAPI keeps those nested)."""
+    found: list[APIRoute] = []
+    for route in routes:
+        if isinstance(route, APIRoute):
+            found.append(route)
+        elif hasattr(route, "original_router"):
+            found += _api_routes(route.original_router.routes)
+    return found
+
+
+def test_every_route_with_a_body_reads_it_refusing_repeated_keys(client: TestClient) -> None:
+    with_body = [route for route in _api_routes(client.app.routes) if route.body_field is not None]
+    assert len(with_body) >= 6 and all(isinstance(route, JsonBodyRoute) for route in with_body), [
+        route.path for route in with_body if not isinstance(route, JsonBodyRoute)
+    ]
 
 
 def test_a_body_that_is_not_utf8_is_a_422_on_the_body(client: TestClient, model_id: str) -> None:

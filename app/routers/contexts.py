@@ -28,11 +28,12 @@ from app.errors import (
     Unauthorized,
     error_responses,
 )
+from app.routing import JsonBodyRoute
 from app.schemas.contexts import ContextLabelRead, ContextLabelUpdate, ContextsRead
 from app.services import contexts as context_service
 from core.context.metrics import RELEVANCE_WEIGHT
 
-router = APIRouter(prefix="/v1/models/{model_id}", tags=["contexts"])
+router = APIRouter(prefix="/v1/models/{model_id}", tags=["contexts"], route_class=JsonBodyRoute)
 
 
 @router.get(

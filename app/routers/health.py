@@ -7,10 +7,11 @@ from fastapi import APIRouter
 
 from app.deps import AdmissionDep, StateDep
 from app.errors import NotReady, error_responses
+from app.routing import JsonBodyRoute
 from app.schemas.health import HealthRead, ReadinessRead
 from app.services import health as health_service
 
-router = APIRouter(tags=["health"])
+router = APIRouter(tags=["health"], route_class=JsonBodyRoute)
 
 
 @router.get("/healthz", summary="Liveness: the process answers")

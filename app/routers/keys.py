@@ -8,10 +8,11 @@ from fastapi import APIRouter, Path, status
 
 from app.deps import AdminAccess, ReadSessionDep, WriteSessionDep
 from app.errors import Forbidden, InvalidInput, KeyNotFound, Unauthorized, error_responses
+from app.routing import JsonBodyRoute
 from app.schemas.keys import ApiKeyCreate, ApiKeyCreated, ApiKeyRead
 from app.services import keys as key_service
 
-router = APIRouter(prefix="/v1/keys", tags=["keys"], dependencies=[AdminAccess])
+router = APIRouter(prefix="/v1/keys", tags=["keys"], dependencies=[AdminAccess], route_class=JsonBodyRoute)
 _AUTH = (Unauthorized, Forbidden)
 
 

@@ -28,10 +28,11 @@ from app.errors import (
     Unauthorized,
     error_responses,
 )
+from app.routing import JsonBodyRoute
 from app.schemas.models import ModelCreate, ModelRead
 from app.services import models as model_service
 
-router = APIRouter(prefix="/v1/models", tags=["models"])
+router = APIRouter(prefix="/v1/models", tags=["models"], route_class=JsonBodyRoute)
 _AUTH = (Unauthorized, Forbidden)
 
 

@@ -6,10 +6,11 @@ from fastapi import APIRouter
 
 from app.deps import ModelDep, ReadAccess, ReadSessionDep
 from app.errors import InvalidInput, ModelNotFitted, ModelNotFound, SceneNotFound, Unauthorized, error_responses
+from app.routing import JsonBodyRoute
 from app.schemas.plans import PlanCreate, PlanRead
 from app.services import plans as plan_service
 
-router = APIRouter(prefix="/v1/models/{model_id}", tags=["planning"])
+router = APIRouter(prefix="/v1/models/{model_id}", tags=["planning"], route_class=JsonBodyRoute)
 
 
 @router.post(

@@ -36,12 +36,13 @@ from app.errors import (
     error_responses,
 )
 from app.registry import ModelRuntime
+from app.routing import JsonBodyRoute
 from app.schemas.common import Page
 from app.schemas.scenes import SceneCreate, SceneRead, SceneSummary
 from app.services import scenes as scene_service
 from app.state import AppState
 
-router = APIRouter(prefix="/v1/models/{model_id}", tags=["scenes"])
+router = APIRouter(prefix="/v1/models/{model_id}", tags=["scenes"], route_class=JsonBodyRoute)
 
 _ANALYSIS_ERRORS = (InvalidInput, ModelNotFound, ModelNotFitted, PayloadTooLarge, Unauthorized)
 

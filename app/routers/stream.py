@@ -10,6 +10,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 from sqlalchemy.exc import SQLAlchemyError
 
 from app.auth import authenticate, stream_subprotocol, websocket_key
+from app.routing import JsonBodyRoute
 from app.schemas.stream import HelloEvent
 from app.settings import Settings, normalise_origin
 from app.state import AppState
@@ -24,7 +25,7 @@ from app.stream import (
 )
 from app.websocket_protocol import CLOSE_HANDSHAKE_SECONDS, RESET_EXTENSION
 
-router = APIRouter()
+router = APIRouter(route_class=JsonBodyRoute)
 logger = logging.getLogger("contextweb")
 
 

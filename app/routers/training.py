@@ -31,11 +31,12 @@ from app.errors import (
     error_responses,
 )
 from app.registry import ModelRuntime
+from app.routing import JsonBodyRoute
 from app.schemas.training import FitCreate, FitRead, PrototypeTableRead, TrainingBatchCreate, TrainingBatchRead
 from app.services import training as training_service
 from app.state import AppState
 
-router = APIRouter(prefix="/v1/models/{model_id}", tags=["training"])
+router = APIRouter(prefix="/v1/models/{model_id}", tags=["training"], route_class=JsonBodyRoute)
 _WRITE_ERRORS = (InvalidInput, ModelNotFound, Unauthorized, Forbidden, ModelBusy, RateLimited, StorageBusy)
 
 

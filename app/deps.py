@@ -44,6 +44,7 @@ from app.errors import (
     write_conflict,
 )
 from app.registry import ModelRuntime, ModelWrite
+from app.schemas.common import PRINTABLE_ASCII
 from app.schemas.keys import Role
 from app.state import AppState
 from storage.repositories.incremental_lda import LockHeldElsewhere
@@ -107,7 +108,7 @@ IdempotencyKey = Annotated[
         alias="Idempotency-Key",
         min_length=1,
         max_length=200,
-        pattern=r"^[\x21-\x7e]+$",
+        pattern=PRINTABLE_ASCII,
         description="Makes retries safe: the same key and body return the stored answer and change nothing.",
     ),
 ]

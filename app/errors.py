@@ -34,7 +34,7 @@ from sqlalchemy.exc import (
 from sqlalchemy.exc import TimeoutError as PoolTimeoutError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from app.schemas.common import UNION_TAGS, ErrorRead
+from app.schemas.common import PATTERN_MEANINGS, UNION_TAGS, ErrorRead
 from core.errors import InvalidInputError
 from storage.database import LOCK_NOT_AVAILABLE
 from storage.unit_of_work import commit_outcome_unknown, deadline_that_passed
@@ -295,9 +295,13 @@ async def _request_validation(_request: Request, exc: Exception) -> JSONResponse
 def _located(error: dict[str, Any]) -> dict[str, Any]:
     """FastAPI locates a JSON syntax error at ``("body", <character offset>)``, which would read as
     the field ``[17]``: the field is the body, and the offset and the parser's words go in the message.
-    A body FastAPI did not parse (no JSON content type) is validated as bytes: say what to send."""
+    A body FastAPI did not parse (no JSON content type) is validated as bytes: say what to send.
+    A refused pattern is said in words (``PATTERN_MEANINGS``), not as its regular expression."""
     if tuple(error.get("loc", ())) == ("body",) and isinstance(error.get("input"), bytes):
         return {**error, "msg": "not read as JSON: send a JSON object with Content-Type: application/json"}
+    if error.get("type") == "string_pattern_mismatch":
+        meaning = PATTERN_MEANINGS.get(str((error.get("ctx") or {}).get("pattern")))
+        return error if meaning is None else {**error, "msg": meaning}
     if error.get("type") != "json_invalid":
         return error
     # A repeated key has no position (app/routing.py: NO_POSITION).

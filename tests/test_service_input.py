@@ -195,6 +195,20 @@ def test_whole_numbers_are_numbers_and_arrays_are_pairs(client: TestClient, mode
     assert response.status_code == 201, response.text
 
 
+def test_a_refused_pattern_is_said_in_words(client: TestClient, model_id: str) -> None:
+    response = client.post(f"/v1/models/{model_id}/scenes", json=_scene({"concepts": ["cup\u0000x"]}))
+    assert response.status_code == 422 and response.json()["detail"] == (
+        "objects[0].concepts[0]: String should contain no control characters (U+0000 to U+001F, U+007F)"
+    )
+    response = client.post(
+        f"/v1/models/{model_id}/scenes", json=_scene({"concepts": ["cup"]}), headers={"Idempotency-Key": "a b"}
+    )
+    assert response.status_code == 422 and response.json()["detail"] == (
+        "header.Idempotency-Key: String should be printable ASCII without spaces (the characters ! to ~)"
+    )
+    assert client.get(f"/v1/models/{model_id}").json()["scene_count"] == 0
+
+
 def test_nan_and_infinity_are_refused(client: TestClient, model_id: str) -> None:
     for literal in ("NaN", "Infinity", "-Infinity"):
         entity = ", ".join([literal] + ["0.0"] * 90)

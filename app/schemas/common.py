@@ -45,6 +45,16 @@ ArrayOrBase64 = Annotated[
 ]
 
 
+#: No control characters: a name or label stored in the database (PostgreSQL text refuses NUL).
+NO_CONTROL_CHARACTERS = r"^[^\x00-\x1f\x7f]+$"
+#: Printable ASCII without spaces: a header token such as an Idempotency-Key.
+PRINTABLE_ASCII = r"^[\x21-\x7e]+$"
+#: What a refused pattern means, said in the error instead of the regular expression (app/errors.py).
+PATTERN_MEANINGS = {
+    NO_CONTROL_CHARACTERS: "String should contain no control characters (U+0000 to U+001F, U+007F)",
+    PRINTABLE_ASCII: "String should be printable ASCII without spaces (the characters ! to ~)",
+}
+
 #: A probability in [0, 1].
 Probability = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
 #: A finite real number (NaN and ±inf are refused with a 422 naming the field).

@@ -6,7 +6,7 @@ from typing import Annotated
 
 from pydantic import ConfigDict, Field, StringConstraints
 
-from app.schemas.common import ReadSchema, RequestSchema
+from app.schemas.common import NO_CONTROL_CHARACTERS, ReadSchema, RequestSchema
 from app.schemas.scenes import ConceptKind
 
 
@@ -24,7 +24,7 @@ class DistinctiveConcept(ConceptProbability):
 
 ContextLabel = Annotated[
     str,
-    StringConstraints(strip_whitespace=True, min_length=1, max_length=80, pattern=r"^[^\x00-\x1f\x7f]+$"),
+    StringConstraints(strip_whitespace=True, min_length=1, max_length=80, pattern=NO_CONTROL_CHARACTERS),
 ]
 
 

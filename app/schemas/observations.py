@@ -16,12 +16,12 @@ from typing import Annotated, Any, ClassVar, TypeVar
 import numpy as np
 from pydantic import AfterValidator, Field, StringConstraints, field_validator, model_validator
 
-from app.schemas.common import ArrayOrBase64, FiniteFloat, RequestSchema
+from app.schemas.common import NO_CONTROL_CHARACTERS, ArrayOrBase64, FiniteFloat, RequestSchema
 from core.features.layout import EFFECT_SIZE, ENTITY_SIZE
 from core.payloads import MAX_SAMPLE_RATE, MIN_SAMPLE_RATE
 
 #: A name stored in the database: no control characters (PostgreSQL text refuses NUL).
-Name = Annotated[str, StringConstraints(min_length=1, max_length=200, pattern=r"^[^\x00-\x1f\x7f]+$")]
+Name = Annotated[str, StringConstraints(min_length=1, max_length=200, pattern=NO_CONTROL_CHARACTERS)]
 #: A behaviour of the model's repertoire (one of its verbs, e.g. ``push_left``).
 BehaviourName = Annotated[Name, Field(examples=["push_left"])]
 

@@ -15,6 +15,7 @@ from core.context import (
     PaperSettings,
     SamplerSettings,
     SceneUpdate,
+    lda,
 )
 from core.context import _gibbs_kernels as gibbs_kernels
 from core.errors import InvalidInputError
@@ -162,6 +163,24 @@ def test_unseen_concepts_extend_the_vocabulary_without_restart() -> None:
     assert model.vocabulary == ("cup", "plate", "teapot", "spoon")
     assert update.word_ids.tolist() == [0, 2, 3]
     assert model.concept_given_context().shape == (model.n_contexts, 4)
+    model.check_invariants()
+
+
+def test_a_scene_past_the_most_tokens_a_model_holds_changes_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
+    """MAX_TOKENS (int32 token indices) lowered to 5 so that a test reaches it: the scene is refused
+    before the vocabulary grows, and the model goes on learning what fits."""
+    model = IncrementalLDA(["cup", "plate"], seed=0, **ONLINE)
+    model.learn_scene(["cup", "plate", "cup"])
+    monkeypatch.setattr(lda, "MAX_TOKENS", 5)
+    state = model.to_state()
+    for scene in (["cup", "teapot", "spoon"], ["cup", "plate", "cup"]):
+        with pytest.raises(InvalidInputError) as refused:
+            model.learn_scene(scene)
+        assert refused.value.field == "words" and "past 5, the most one model holds" in refused.value.problem
+    assert model.vocabulary == ("cup", "plate") and model.n_scenes == 1
+    assert np.array_equal(model.to_state().assignments, state.assignments)
+    model.learn_scene(["plate", "cup"])
+    assert model.lda_state.n_tokens == 5
     model.check_invariants()
 
 

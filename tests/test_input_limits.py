@@ -17,6 +17,7 @@ from fastapi.testclient import TestClient
 
 from app.main import create_app
 from app.middleware import MAX_JSON_DEPTH, MAX_NUMBER_LENGTH, json_body_problem
+from core.context import lda
 from tests.conftest import CONTEXT_CONCEPTS, FAST_HYPERPARAMETERS, make_settings, migrated_database
 
 SMALL_BODY_LIMIT = 16_384
@@ -104,6 +105,37 @@ def test_the_default_limit_refuses_65_new_names_and_models_loaded_from_storage_g
         response = client.post(f"/v1/models/{model_id}/scenes", json={"objects": [{"concepts": _names(2, "new")}]})
         assert response.status_code == 422 and "limit per request is 1" in response.json()["detail"]
         assert _counts(client, model_id) == (1, 29 + 64)
+
+
+def test_a_scene_past_the_most_tokens_a_model_holds_is_refused_and_nothing_is_learned(
+    database_url: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The bound (int32 token indices: 2,147,483,647 tokens, about two years of a scene every 2 s)
+    is lowered to one token more than the model holds, so that a test reaches it; the check is the same."""
+
+    def tokens(answer: dict) -> int:
+        return sum(len(obj["active_concepts"]) for obj in answer["objects"])
+
+    with TestClient(create_app(make_settings(database_url))) as client:
+        model_id = _new_model(client)
+        scenes = f"/v1/models/{model_id}/scenes"
+        first = client.post(scenes, json={"objects": [{"concepts": ["cup", "hard", "grasp"]}]})
+        assert first.status_code == 201
+        held = tokens(first.json())
+        monkeypatch.setattr(lda, "MAX_TOKENS", held + 1)
+        before = _counts(client, model_id)
+        response = client.post(scenes, json={"objects": [{"concepts": ["cup"]}, {"concepts": ["brand_new"]}]})
+        assert response.status_code == 422, response.text
+        assert response.json() == {
+            "error": "invalid_input",
+            "detail": f"the model holds {held} tokens and a scene of 2 would take it past {held + 1}, the most one "
+            "model holds (int32 token indices): learn into a new model",
+            "field": "objects",
+        }
+        assert _counts(client, model_id) == before  # no scene, and the new name did not join the vocabulary
+        assert tokens(client.post(scenes, json={"objects": [{"concepts": ["cup"]}]}).json()) == 1  # exactly fits
+        assert client.post(scenes, json={"objects": [{"concepts": ["cup"]}]}).status_code == 422
+        assert _counts(client, model_id) == (before[0] + 1, before[1])
 
 
 # Hyperparameters within their documented ranges.

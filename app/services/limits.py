@@ -1,4 +1,4 @@
-"""Bounds on how much one request may make a model hold: its vocabulary (docs/api.md, "Limits").
+"""Bounds on how much one request may make a model hold: its vocabulary and its tokens (docs/api.md, "Limits").
 
 Every distinct concept name a scene brings grows the model's vocabulary W for good: a
 column of the K × |W| counts, a row of the database, a term of every sweep over the
@@ -15,6 +15,9 @@ bound it, both checked before anything is learned:
   few at a time; 64 is twice the paper's whole vocabulary, so an honest scene never
   meets it, while a scene at the schema's maximum (64 objects × 256 names) is 256
   times over it. It also stops one client filling the vocabulary in one request.
+
+A model's tokens are bounded too, by the int32 indices they are kept under (``core.context.lda.MAX_TOKENS``,
+about two years of a scene every 2 s): a scene that would pass it is refused the same way.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from typing import TYPE_CHECKING
 
 from app.errors import InvalidInput
 from app.settings import Settings
+from core.errors import InvalidInputError
 
 if TYPE_CHECKING:
     from app.registry import ModelRuntime
@@ -72,3 +76,12 @@ def check_vocabulary_growth(model: ModelRuntime, words: Sequence[str]) -> None:
             f"the scene would add {len(new_words)} new concepts to a vocabulary of {size}; the limit per model "
             f"is {limits.max_vocabulary} concepts (CONTEXTWEB_MAX_VOCABULARY)",
         )
+
+
+def check_token_room(model: ModelRuntime, words: Sequence[str]) -> None:
+    """Raise a 422 on ``objects`` when the model has no room for the scene's tokens
+    (:meth:`core.context.lda.LDAState.check_room`); call it before the model changes."""
+    try:
+        model.incremental_lda.lda_state.check_room(len(words))
+    except InvalidInputError as full:
+        raise InvalidInput("objects", full.problem) from None

@@ -47,7 +47,7 @@ from app.registry import ModelRuntime, jsonable
 from app.schemas.common import Page
 from app.schemas.scenes import ObjectAnalysis, SceneCreate, SceneRead, SceneSummary
 from app.services.idempotency import check_retry, request_digest
-from app.services.limits import check_vocabulary_growth
+from app.services.limits import check_token_room, check_vocabulary_growth
 from app.services.perception import (
     ObjectResult,
     Perception,
@@ -192,6 +192,7 @@ def learn_scene(
     analysis = prepared.analysis_for(model)
     words = _scene_words(analysis)
     check_vocabulary_growth(model, words)
+    check_token_room(model, words)
     analysis = prepared.in_context_for(model, analysis)
     first_token = model.incremental_lda.lda_state.n_tokens
     started = time.perf_counter()

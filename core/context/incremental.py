@@ -463,11 +463,13 @@ class IncrementalLDA:
     def _scene_ids(self, words: Any) -> tuple[np.ndarray, list[str]]:
         """The scene's concept ids (int32) and the concepts it adds to the vocabulary, in order,
         after validating the scene (``_scene_words``; in one pass when every concept is known,
-        :meth:`_ids_if_all_known`)."""
+        :meth:`_ids_if_all_known`) and checking that the model has room for it (:meth:`LDAState.check_room`)."""
         ids = self._ids_if_all_known(words)
         if ids is not None:
+            self._state.check_room(ids.shape[0])
             return ids, []
         words = _scene_words(words)
+        self._state.check_room(len(words))  # before the vocabulary grows: a refused scene changes nothing
         additions = self._add_concepts(words)
         return self._ids(words), additions
 

@@ -32,6 +32,11 @@ from core.context.metrics import dirichlet_multinomial_log_likelihood
 from core.errors import InvalidInputError
 
 _INITIAL_TOKENS = 256
+MAX_TOKENS = int(np.iinfo(np.int32).max)
+"""The most tokens one model holds: token indices are int32 in memory (the scene offsets, which the
+kernels write) and in storage (a scene's ``first_token``, the checkpoint's ``token_count``). At
+80 tokens a scene every 2 s that is about two years; :meth:`LDAState.check_room` refuses a scene
+that would pass it, where the kernels would otherwise wrap an offset around and corrupt the model."""
 _INITIAL_DOCUMENTS = 16
 _INITIAL_WORDS = 32
 _INITIAL_CONTEXTS = 4
@@ -287,6 +292,15 @@ class LDAState:
         self.n_tokens = stop
         # One pass of the count kernel: ``np.add.at`` took 99 ms of a 467 ms catch-up of 10,000 scenes.
         count_kernels.count_assignments(word_ids, contexts, docs, self._n_wk, self._n_k, self._n_dk)
+
+    def check_room(self, new_tokens: int) -> None:
+        """Raise :class:`InvalidInputError` on ``words`` if ``new_tokens`` more would pass :data:`MAX_TOKENS`."""
+        if self.n_tokens + new_tokens > MAX_TOKENS:
+            raise InvalidInputError(
+                "words",
+                f"the model holds {self.n_tokens:,} tokens and a scene of {new_tokens} would take it past "
+                f"{MAX_TOKENS:,}, the most one model holds (int32 token indices): learn into a new model",
+            )
 
     def _reserve_scene(self, stop: int) -> None:
         """Room for one more scene whose tokens end at ``stop`` (each check is one comparison in

@@ -23,7 +23,12 @@ its worker's share is never closed. Nothing is shared but counts, and a stale or
 most one extra reconnection or one missed one: the slots are plain memory, written by their worker
 only, read by the others.
 
-With one worker, uvicorn's own socket and protocol run unchanged (``serve`` uses these only with N > 1).
+With one worker, uvicorn's own socket runs unchanged (``serve`` uses these only with N > 1).
+
+Every worker's protocol, one worker's included, also puts a deadline on a request's line and headers
+(:class:`HeaderDeadlineProtocol`): uvicorn times out neither a connection that sends nothing nor one
+whose headers stall (a "slowloris" client), so each would hold a connection, a file descriptor and
+its buffers for good (seen: 31 such connections still open after 65 s).
 """
 
 from __future__ import annotations
@@ -37,9 +42,11 @@ import socket
 import struct
 import tempfile
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
+
+from app.errors import ErrorRead
 
 SocketT = TypeVar("SocketT", bound=socket.socket)
 
@@ -128,7 +135,73 @@ def _worker_counts() -> ConnectionCounts | None:
     return _counts
 
 
-class BalancedHttpToolsProtocol(HttpToolsProtocol):
+class HeaderDeadlineProtocol(HttpToolsProtocol):
+    """uvicorn's httptools protocol with a deadline on each request's line and headers.
+
+    The clock starts when the connection opens and when a request's first byte arrives (on a
+    keep-alive connection; between requests uvicorn's own keep-alive time-out closes an idle one)
+    and stops when the headers are complete: the body has its own deadline (app/middleware.py).
+    Past it the client gets a 408 ``request_timeout`` in the documented error shape and the
+    connection is closed, as nginx's ``client_header_timeout`` would."""
+
+    read_timeout_seconds: ClassVar[float] = 10.0
+    """``CONTEXTWEB_HEADER_READ_TIMEOUT_SECONDS``, set in each serving process (:func:`set_header_read_timeout`)."""
+
+    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
+        super().connection_made(transport)
+        self._header_deadline: asyncio.TimerHandle | None = None
+        self._arm_header_deadline()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._disarm_header_deadline()
+        super().connection_lost(exc)
+
+    def on_message_begin(self) -> None:
+        super().on_message_begin()
+        if self._header_deadline is None:
+            self._arm_header_deadline()
+
+    def on_headers_complete(self) -> None:
+        self._disarm_header_deadline()
+        super().on_headers_complete()
+
+    def _arm_header_deadline(self) -> None:
+        self._header_deadline = self.loop.call_later(self.read_timeout_seconds, self._header_deadline_passed)
+
+    def _disarm_header_deadline(self) -> None:
+        if self._header_deadline is not None:
+            self._header_deadline.cancel()
+            self._header_deadline = None
+
+    def _header_deadline_passed(self) -> None:
+        self._header_deadline = None
+        if self.transport.is_closing():
+            return
+        body = (
+            ErrorRead(
+                error="request_timeout",
+                detail=f"the request line and headers did not arrive within {self.read_timeout_seconds:g} s "
+                "(CONTEXTWEB_HEADER_READ_TIMEOUT_SECONDS)",
+                field=None,
+            )
+            .model_dump_json()
+            .encode()
+        )
+        head = (
+            b"HTTP/1.1 408 Request Timeout\r\ncontent-type: application/json\r\nconnection: close\r\n"
+            b"content-length: " + str(len(body)).encode() + b"\r\n\r\n"
+        )
+        self.transport.write(head + body)
+        self.transport.close()
+
+
+def set_header_read_timeout(seconds: float) -> None:
+    """The header deadline of this process's connections (:class:`HeaderDeadlineProtocol`); the
+    serving app sets it from its settings before the process accepts a connection."""
+    HeaderDeadlineProtocol.read_timeout_seconds = seconds
+
+
+class BalancedHttpToolsProtocol(HeaderDeadlineProtocol):
     """uvicorn's httptools protocol, counting this worker's connections (:class:`ConnectionCounts`)
     and closing one accepted beyond the worker's share after its first response."""
 

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from sqlalchemy.exc import OperationalError
 
-from app.connections import WorkerListener, create_counts
+from app.connections import WorkerListener, create_counts, set_header_read_timeout
 from app.logs import log_config
 from app.settings import LOOPBACK_HOSTS, Settings
 from storage.database import create_database_engine
@@ -97,6 +97,8 @@ def serving_app(settings: Settings | None = None) -> FastAPI:
     from app.main import create_app
     from app.services.warmup import freeze_start_up_objects, warm_up_kernels
 
+    settings = settings or Settings()
+    set_header_read_timeout(settings.header_read_timeout_seconds)  # before the process accepts a connection
     warm_up_kernels()  # before /readyz says ready: a first request must not wait for numba to compile
     app = create_app(settings)
     app.openapi()  # nor for FastAPI to build its route's fields
@@ -131,20 +133,16 @@ def run_serve(args: argparse.Namespace) -> int:
         "log_config": log_config(),
         "access_log": False,
         "ws": "app.websocket_protocol:ResettableWebSocketProtocol",  # slow stream clients can be dropped (docs/stream.md)
+        "http": "app.connections:HeaderDeadlineProtocol",  # stalled headers are cut (app/connections.py)
     }
     if args.workers == 1:
         uvicorn.run(serving_app(settings), **options)
         return 0
     # Each worker builds its own app from the environment (uvicorn imports the factory by name).
     os.environ.update({f"CONTEXTWEB_{name.upper()}": str(value) for name, value in overrides.items()})
-    config = uvicorn.Config(
-        "app.serve:serving_app",
-        factory=True,
-        workers=args.workers,
-        # Each worker on its own socket of the port, its keep-alive connections evened out (app/connections.py).
-        http="app.connections:BalancedHttpToolsProtocol",
-        **options,
-    )
+    # Each worker on its own socket of the port, its keep-alive connections evened out (app/connections.py).
+    worker_options = options | {"http": "app.connections:BalancedHttpToolsProtocol"}
+    config = uvicorn.Config("app.serve:serving_app", factory=True, workers=args.workers, **worker_options)
     try:
         listener = WorkerListener.bind_to(host, settings.port)
     except OSError as error:

@@ -52,6 +52,13 @@ class Settings(BaseSettings):
     body_read_timeout_seconds: float = Field(
         10.0, gt=0, le=600, description="Time a request's whole body may take to arrive; then a 408 and the close."
     )
+    header_read_timeout_seconds: float = Field(
+        10.0,
+        gt=0,
+        le=600,
+        description="Time a request's line and headers may take to arrive (from the connection's opening or the "
+        "request's first byte); then a 408 and the close.",
+    )
     max_vocabulary: int = Field(
         10_000, ge=1, le=1_000_000, description="Concepts (|W|) a model may hold; a scene that would pass it is a 422."
     )

@@ -1,9 +1,9 @@
-"""The body-read deadline against a real ``contextweb serve``: stalled bodies get a 408 and a close.
+"""The read deadlines against a real ``contextweb serve``: stalled bodies and stalled headers get a 408 and a close.
 
 Raw sockets send a request's headers and only part of its body (or a chunked body
-that trickles on past the deadline); each must be answered 408 in the documented
-shape and closed within the deadline plus a margin, while a normal request on
-another connection is served meanwhile. The deadline is 1 s here.
+that trickles on past the deadline), or part of the headers, or nothing; each must be
+answered 408 in the documented shape and closed within the deadline plus a margin,
+while a normal request on another connection is served meanwhile. Both deadlines are 1 s here.
 """
 
 from __future__ import annotations
@@ -30,7 +30,11 @@ STALLED_CONNECTIONS = 50
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServerProcess]:
     directory = Path(tmp_path_factory.mktemp("deadline"))
     url = migrated_database("sqlite", None, directory)  # type: ignore[arg-type]
-    env = {"CONTEXTWEB_BODY_READ_TIMEOUT_SECONDS": str(DEADLINE_SECONDS), "CONTEXTWEB_MAX_BODY_BYTES": "65536"}
+    env = {
+        "CONTEXTWEB_BODY_READ_TIMEOUT_SECONDS": str(DEADLINE_SECONDS),
+        "CONTEXTWEB_HEADER_READ_TIMEOUT_SECONDS": str(DEADLINE_SECONDS),
+        "CONTEXTWEB_MAX_BODY_BYTES": "65536",
+    }
     with running_server(url, directory, env=env) as server:
         yield server
 
@@ -163,3 +167,56 @@ def test_a_chunked_body_over_the_limit_is_a_413_on_the_body_from_the_real_server
         status, error, head = _error_of(_read_until_closed(sock))
     assert status == 413 and error["error"] == "payload_too_large" and error["field"] == "body"
     assert b"connection: close" in head
+
+
+HEADER_TIMEOUT = {
+    "error": "request_timeout",
+    "detail": f"the request line and headers did not arrive within {DEADLINE_SECONDS:g} s "
+    "(CONTEXTWEB_HEADER_READ_TIMEOUT_SECONDS)",
+    "field": None,
+}
+
+
+def test_stalled_headers_and_silent_connections_get_a_408_and_are_closed_while_others_are_served(
+    server: ServerProcess,
+) -> None:
+    """uvicorn times out neither (a "slowloris" client held 31 connections for good, app/connections.py)."""
+    started = time.monotonic()
+    silent = [_connect(server) for _ in range(10)]
+    partial = [_connect(server) for _ in range(10)]
+    for sock in partial:
+        sock.sendall(b"GET /healthz HTTP/1.1\r\nHost: test\r\nX-Slow: ")
+    with server.client() as client:
+        assert client.get("/healthz").status_code == 200
+        served_after = time.monotonic() - started
+    for sock in silent + partial:
+        with sock:
+            status, error, head = _error_of(_read_until_closed(sock))
+            assert status == 408 and b"connection: close" in head and error == HEADER_TIMEOUT
+    elapsed = time.monotonic() - started
+    assert served_after < DEADLINE_SECONDS
+    assert DEADLINE_SECONDS <= elapsed < DEADLINE_SECONDS + MARGIN_SECONDS, elapsed
+
+
+def test_each_request_of_a_keep_alive_connection_has_the_header_deadline(server: ServerProcess) -> None:
+    with _connect(server) as sock:
+        sock.sendall(b"GET /healthz HTTP/1.1\r\nHost: test\r\n\r\n")
+        received = b""
+        while not _is_complete_response(received):
+            received += sock.recv(65536)
+        assert received.startswith(b"HTTP/1.1 200")
+        time.sleep(DEADLINE_SECONDS / 2)  # within uvicorn's keep-alive time-out (5 s): the connection stays
+        started = time.monotonic()
+        sock.sendall(b"GET /healthz HTTP/1.1\r\n")
+        status, error, _ = _error_of(_read_until_closed(sock))
+    assert status == 408 and error == HEADER_TIMEOUT
+    assert DEADLINE_SECONDS <= time.monotonic() - started + 0.05 < DEADLINE_SECONDS + MARGIN_SECONDS
+
+
+def test_headers_that_trickle_in_within_the_deadline_are_served(server: ServerProcess) -> None:
+    request = b"GET /healthz HTTP/1.1\r\nHost: test\r\nConnection: close\r\n\r\n"
+    with _connect(server) as sock:
+        for start in range(0, len(request), 6):
+            sock.sendall(request[start : start + 6])
+            time.sleep(DEADLINE_SECONDS / 20)
+        assert _read_until_closed(sock).startswith(b"HTTP/1.1 200")

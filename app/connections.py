@@ -46,7 +46,7 @@ from typing import Any, ClassVar, TypeVar
 
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
-from app.errors import ErrorRead
+from app.errors import ErrorRead, HeadersTimeout
 
 SocketT = TypeVar("SocketT", bound=socket.socket)
 
@@ -177,19 +177,11 @@ class HeaderDeadlineProtocol(HttpToolsProtocol):
         self._header_deadline = None
         if self.transport.is_closing():
             return
-        body = (
-            ErrorRead(
-                error="request_timeout",
-                detail=f"the request line and headers did not arrive within {self.read_timeout_seconds:g} s "
-                "(CONTEXTWEB_HEADER_READ_TIMEOUT_SECONDS)",
-                field=None,
-            )
-            .model_dump_json()
-            .encode()
-        )
+        timeout = HeadersTimeout(self.read_timeout_seconds)
+        body = ErrorRead(error=timeout.error, detail=timeout.message, field=timeout.field).model_dump_json().encode()
         head = (
-            b"HTTP/1.1 408 Request Timeout\r\ncontent-type: application/json\r\nconnection: close\r\n"
-            b"content-length: " + str(len(body)).encode() + b"\r\n\r\n"
+            b"HTTP/1.1 %d Request Timeout\r\ncontent-type: application/json\r\nconnection: close\r\n"
+            b"content-length: %d\r\n\r\n" % (timeout.status_code, len(body))
         )
         self.transport.write(head + body)
         self.transport.close()

@@ -155,6 +155,20 @@ class RequestTimeout(ContextwebError):
         )
 
 
+class HeadersTimeout(ContextwebError):
+    """A request's line and headers did not arrive in time (a "slowloris" client, or a connection
+    that sends nothing); the connection is closed (app/connections.py). Its body's sibling is
+    :class:`RequestTimeout`, whose error it shares."""
+
+    error = RequestTimeout.error
+    status_code = RequestTimeout.status_code
+
+    def __init__(self, seconds: float) -> None:
+        super().__init__(
+            f"the request line and headers did not arrive within {seconds:g} s (CONTEXTWEB_HEADER_READ_TIMEOUT_SECONDS)"
+        )
+
+
 class ServiceUnavailable(ContextwebError):
     """A 503 the client should retry after ``retry_after`` seconds (the bridge retries every 5xx)."""
 

@@ -390,12 +390,12 @@ class LDAState:
             )
         )  # fmt: skip
 
-    def first_novel_scene(self, first_doc: int, strength: float) -> int | None:
-        """The earliest of scenes ``first_doc:`` that is novel by :meth:`scene_novelty` against the
-        contexts without scenes ``first_doc:`` (its own tokens among them), or None. Where a
-        novelty-triggered growth check starts (:meth:`KRule.growth_window`)."""
+    def first_novel_scene(self, first_doc: int, strength: float, stop: int | None = None) -> int | None:
+        """The earliest of scenes ``first_doc:stop`` (``stop`` None: to the last) that is novel by
+        :meth:`scene_novelty` against the contexts without scenes ``first_doc:`` (its own tokens
+        among them), or None. Where a novelty-triggered growth check starts (:meth:`KRule.growth_window`)."""
         offsets = self._offsets
-        for scene in range(first_doc, self.n_documents):
+        for scene in range(first_doc, self.n_documents if stop is None else min(stop, self.n_documents)):
             if self.scene_novelty(self._words[offsets[scene] : offsets[scene + 1]], first_doc, strength) > 0.0:
                 return scene
         return None

@@ -101,8 +101,9 @@ class KRule(ABC):
         first_doc = max(0, seen - s.novelty_window)
         if state.scene_novelty(word_ids, first_doc, s.scene_prior_strength) > 0.0:
             latest_start = max(first_doc, seen - NOVELTY_MIN_WINDOW)
-            earliest = state.first_novel_scene(first_doc, s.scene_prior_strength)
-            return latest_start if earliest is None else min(earliest, latest_start)
+            # Only scenes before latest_start can move the start: the scan stops there.
+            earliest = state.first_novel_scene(first_doc, s.scene_prior_strength, stop=latest_start)
+            return latest_start if earliest is None else earliest
         return None
 
     @abstractmethod

@@ -122,9 +122,9 @@ def test_scene_updates_replay_the_model_exactly() -> None:
 
 def test_scene_changes_shortcuts_give_the_general_paths_result(monkeypatch: pytest.MonkeyPatch) -> None:
     """scene_changes sums a small vocabulary's count changes in a dense table instead of sorting
-    its keys, and sorts an update's few hundred touched entries at once instead of only the
-    changed tokens: everything it returns, the rows' order by concept then context included, is
-    what the general paths give (the kernel's plain-Python version, forced onto them)."""
+    its keys: everything it returns, the rows' order by concept then context included, is what
+    the general path gives (the kernel's plain-Python version, forced onto it). The moved tokens
+    are those whose context now differs from their first entry's, as a plain dict finds them."""
     compiled = gibbs_kernels.scene_changes
     compared = []
 
@@ -132,10 +132,15 @@ def test_scene_changes_shortcuts_give_the_general_paths_result(monkeypatch: pyte
         dense = compiled(*arguments)
         with monkeypatch.context() as patch:
             patch.setattr(gibbs_kernels, "_DENSE_KEYS_PER_KEY", 0)
-            patch.setattr(gibbs_kernels, "_SORT_EVERY_ENTRY_BELOW", 0)
             sorted_keys = compiled.py_func(*arguments)
         for got, expected in zip(dense, sorted_keys, strict=True):
             assert np.array_equal(got, expected)
+        touched, previous, z = arguments[0], arguments[1], arguments[5]
+        first_context: dict[int, int] = {}
+        for token, context in zip(touched.tolist(), previous.tolist()):  # type: ignore[attr-defined]
+            first_context.setdefault(token, context)
+        moved = sorted(token for token, context in first_context.items() if z[token] != context)  # type: ignore[index]
+        assert dense[0].tolist() == moved and dense[1].tolist() == [z[token] for token in moved]  # type: ignore[index]
         rows = dense[2]
         assert np.all(np.diff(rows[:, 1] * 1_000 + rows[:, 0]) > 0)
         n_wk, k_capacity = arguments[6], arguments[10]

@@ -659,9 +659,6 @@ def sample_new_scene(
     return previous
 
 
-#: :func:`scene_changes` sorts every touched entry when there are fewer than this (an update's
-#: rejuvenated tokens), and otherwise (a growth check's window) only the tokens that changed.
-_SORT_EVERY_ENTRY_BELOW = 1024
 #: :func:`scene_changes` sums net count changes in a dense table when the key space (concepts ×
 #: context capacity) is at most this many times the number of keys, and sorts the keys otherwise.
 _DENSE_KEYS_PER_KEY = 4
@@ -690,62 +687,45 @@ def scene_changes(
     (context, concept, count now) ordered by concept × ``k_capacity`` + context (int64, m × 3; the
     scene's tokens count as new); the scene's contexts (int32); and its θ = (n_dk + α) / (N_d + Kα).
 
-    The few hundred entries of an update are sorted all at once (stably, so a token's first
-    entry leads its group). The thousands of a growth check are not: only a token with some
-    entry differing from its context now can have changed, and those are few, so they alone are
-    sorted, then each one's first entry is found by binary search. Both give the same result.
+    Only a token with some entry differing from its context now can have changed, and those are
+    few: they alone are sorted, then each one's first entry is found by binary search. (Sorting
+    every entry instead, stably so that a token's first entry leads, took 6 µs of numba's
+    mergesort for an update's 320 entries; this path takes the whole kernel under 4 µs:
+    docs/benchmarks.md.)
     """
     n_touched = touched.shape[0]
-    if n_touched < _SORT_EVERY_ENTRY_BELOW:
-        # An update without a growth check: one stable sort of every entry groups each token's
-        # entries, its first entry leading.
-        order = np.argsort(touched, kind="mergesort")
-        reassigned = np.empty(n_touched, dtype=np.int64)
-        contexts = np.empty(n_touched, dtype=np.int32)
-        old = np.empty(n_touched, dtype=np.int32)
-        n_reassigned = 0
+    candidates = np.empty(n_touched, dtype=np.int64)
+    n_candidates = 0
+    for j in range(n_touched):
+        if z[touched[j]] != previous[j]:
+            candidates[n_candidates] = touched[j]
+            n_candidates += 1
+    candidates = np.sort(candidates[:n_candidates])
+    n_distinct = 0
+    for j in range(n_candidates):
+        if n_distinct == 0 or candidates[j] != candidates[n_distinct - 1]:
+            candidates[n_distinct] = candidates[j]
+            n_distinct += 1
+    candidates = candidates[:n_distinct]
+    first = np.empty(n_distinct, dtype=np.int32)
+    found = np.zeros(n_distinct, dtype=np.bool_)
+    if n_distinct:
         for j in range(n_touched):
-            i = touched[order[j]]
-            if j > 0 and touched[order[j - 1]] == i:
-                continue
-            if z[i] != previous[order[j]]:
-                reassigned[n_reassigned] = i
-                contexts[n_reassigned] = z[i]
-                old[n_reassigned] = previous[order[j]]
-                n_reassigned += 1
-    else:
-        candidates = np.empty(n_touched, dtype=np.int64)
-        n_candidates = 0
-        for j in range(n_touched):
-            if z[touched[j]] != previous[j]:
-                candidates[n_candidates] = touched[j]
-                n_candidates += 1
-        candidates = np.sort(candidates[:n_candidates])
-        n_distinct = 0
-        for j in range(n_candidates):
-            if n_distinct == 0 or candidates[j] != candidates[n_distinct - 1]:
-                candidates[n_distinct] = candidates[j]
-                n_distinct += 1
-        candidates = candidates[:n_distinct]
-        first = np.empty(n_distinct, dtype=np.int32)
-        found = np.zeros(n_distinct, dtype=np.bool_)
-        if n_distinct:
-            for j in range(n_touched):
-                c = np.searchsorted(candidates, touched[j])
-                if c < n_distinct and candidates[c] == touched[j] and not found[c]:
-                    first[c] = previous[j]
-                    found[c] = True
-        reassigned = np.empty(n_distinct, dtype=np.int64)
-        contexts = np.empty(n_distinct, dtype=np.int32)
-        old = np.empty(n_distinct, dtype=np.int32)
-        n_reassigned = 0
-        for c in range(n_distinct):
-            i = candidates[c]
-            if z[i] != first[c]:
-                reassigned[n_reassigned] = i
-                contexts[n_reassigned] = z[i]
-                old[n_reassigned] = first[c]
-                n_reassigned += 1
+            c = np.searchsorted(candidates, touched[j])
+            if c < n_distinct and candidates[c] == touched[j] and not found[c]:
+                first[c] = previous[j]
+                found[c] = True
+    reassigned = np.empty(n_distinct, dtype=np.int64)
+    contexts = np.empty(n_distinct, dtype=np.int32)
+    old = np.empty(n_distinct, dtype=np.int32)
+    n_reassigned = 0
+    for c in range(n_distinct):
+        i = candidates[c]
+        if z[i] != first[c]:
+            reassigned[n_reassigned] = i
+            contexts[n_reassigned] = z[i]
+            old[n_reassigned] = first[c]
+            n_reassigned += 1
     # Net count changes: each key (concept × k_capacity + context) doubled, plus 1 for a token
     # joining, so that one plain sort groups the keys and says which way each entry counts.
     start, stop = doc_offsets[d], doc_offsets[d + 1]

@@ -40,13 +40,16 @@ import mmap
 import os
 import socket
 import struct
+import sys
 import tempfile
+from http import HTTPStatus
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
+import httptools
 from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
 
-from app.errors import ErrorRead, HeadersTimeout
+from app.errors import BadHttpRequest, ContextwebError, ErrorRead, HeadersTimeout
 
 SocketT = TypeVar("SocketT", bound=socket.socket)
 
@@ -142,7 +145,11 @@ class HeaderDeadlineProtocol(HttpToolsProtocol):
     keep-alive connection; between requests uvicorn's own keep-alive time-out closes an idle one)
     and stops when the headers are complete: the body has its own deadline (app/middleware.py).
     Past it the client gets a 408 ``request_timeout`` in the documented error shape and the
-    connection is closed, as nginx's ``client_header_timeout`` would."""
+    connection is closed, as nginx's ``client_header_timeout`` would.
+
+    Bytes that the parser refuses get a 400 ``bad_request`` in the same shape, quoting the parser,
+    instead of uvicorn's plain-text "Invalid HTTP request received." (the connection is closed, as
+    uvicorn does)."""
 
     read_timeout_seconds: ClassVar[float] = 10.0
     """``CONTEXTWEB_HEADER_READ_TIMEOUT_SECONDS``, set in each serving process (:func:`set_header_read_timeout`)."""
@@ -177,13 +184,20 @@ class HeaderDeadlineProtocol(HttpToolsProtocol):
         self._header_deadline = None
         if self.transport.is_closing():
             return
-        timeout = HeadersTimeout(self.read_timeout_seconds)
-        body = ErrorRead(error=timeout.error, detail=timeout.message, field=timeout.field).model_dump_json().encode()
-        head = (
-            b"HTTP/1.1 %d Request Timeout\r\ncontent-type: application/json\r\nconnection: close\r\n"
-            b"content-length: %d\r\n\r\n" % (timeout.status_code, len(body))
-        )
-        self.transport.write(head + body)
+        self._answer_and_close(HeadersTimeout(self.read_timeout_seconds))
+
+    def send_400_response(self, msg: str) -> None:
+        # uvicorn calls this while it handles httptools' HttpParserError, whose message says what was wrong.
+        refused = sys.exc_info()[1]
+        self._answer_and_close(BadHttpRequest(str(refused) if isinstance(refused, httptools.HttpParserError) else msg))
+
+    def _answer_and_close(self, error: ContextwebError) -> None:
+        """``error`` in the documented shape, before any route ran; the connection is closed after it."""
+        body = ErrorRead(error=error.error, detail=error.message, field=error.field).model_dump_json().encode()
+        head = [b"HTTP/1.1 %d %s\r\n" % (error.status_code, HTTPStatus(error.status_code).phrase.encode())]
+        head += [name + b": " + value + b"\r\n" for name, value in self.server_state.default_headers]
+        head.append(b"content-type: application/json\r\nconnection: close\r\ncontent-length: %d\r\n\r\n" % len(body))
+        self.transport.write(b"".join(head) + body)
         self.transport.close()
 
 

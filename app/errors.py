@@ -169,6 +169,18 @@ class HeadersTimeout(ContextwebError):
         )
 
 
+class BadHttpRequest(ContextwebError):
+    """Bytes that are not an HTTP/1.1 request (an unknown method, a control character in a header,
+    a malformed ``Content-Length`` or chunk size): uvicorn's parser refuses them before any route
+    runs, and the connection is closed (app/connections.py). The detail quotes the parser."""
+
+    error = "bad_request"
+    status_code = 400
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(f"not a valid HTTP/1.1 request: {reason}; the connection is closed")
+
+
 class ServiceUnavailable(ContextwebError):
     """A 503 the client should retry after ``retry_after`` seconds (the bridge retries every 5xx)."""
 

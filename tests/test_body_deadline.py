@@ -220,3 +220,29 @@ def test_headers_that_trickle_in_within_the_deadline_are_served(server: ServerPr
             sock.sendall(request[start : start + 6])
             time.sleep(DEADLINE_SECONDS / 20)
         assert _read_until_closed(sock).startswith(b"HTTP/1.1 200")
+
+
+@pytest.mark.parametrize(
+    ("request_bytes", "what"),
+    [
+        (b"FOO /healthz HTTP/1.1\r\nHost: test\r\n\r\n", "method"),
+        (b"GET /healthz HTTP/1.1\r\nHost: test\r\nIdempotency-Key: \x7f\r\n\r\n", "header"),
+        (b"POST /v1/models HTTP/1.1\r\nHost: test\r\nContent-Length: -1\r\n\r\n", "Content-Length"),
+        (b"POST /v1/models HTTP/1.1\r\nHost: test\r\nTransfer-Encoding: chunked\r\n\r\nZZ\r\n", "chunk size"),
+    ],
+)
+def test_bytes_the_http_parser_refuses_get_a_400_in_the_error_shape_and_are_closed(
+    server: ServerProcess, request_bytes: bytes, what: str
+) -> None:
+    """uvicorn answered these with a plain-text line; the detail quotes httptools' parser, whose
+    wording may change between its versions: only the part it names is checked."""
+    with _connect(server) as sock:
+        sock.sendall(request_bytes)
+        status, error, head = _error_of(_read_until_closed(sock))
+    assert status == 400 and b"connection: close" in head and b"content-type: application/json" in head
+    assert error["error"] == "bad_request" and error["field"] is None
+    detail = str(error["detail"])
+    assert detail.startswith("not a valid HTTP/1.1 request: ") and detail.endswith("; the connection is closed")
+    assert what.lower() in detail.lower(), detail
+    with server.client() as client:
+        assert client.get("/healthz").status_code == 200

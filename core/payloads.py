@@ -22,17 +22,39 @@ from core.errors import InvalidInputError
 MIN_SAMPLE_RATE = 4_000
 MAX_SAMPLE_RATE = 192_000
 
+# Bounds on a payload's magnitudes. The features square what they are given (a cloud's
+# covariance, a spectrum's power), so a finite value far enough out made them overflow:
+# coordinates of ~1e160 m failed the surface fit's eigen-solver (a 500), and audio samples of
+# 1e20 overflowed the spectrum's float32 power into a 422 on no field of the request. Each bound
+# is far beyond any real sensor's range and far inside where the squares overflow.
+MAX_COORDINATE_METRES = 1_000.0
+"""A point's largest coordinate in the table frame: no robot's depth sensor sees a kilometre."""
+MAX_AUDIO_MAGNITUDE = 2.0**31
+"""PCM lies in [-1, 1]; integer PCM, up to 32 bits, is read as it is (the MFCC ranges of e_a do not
+depend on a constant gain). The spectrum's float32 power overflows beyond ≈ 1e15."""
+MAX_FINGER_MAGNITUDE = 1e9
+"""A finger reading's largest magnitude: tactile pressure in sensor units, joint angle in radians."""
 
-def _finite_array(values: object, field: str, ndim: int, dtype: type = np.float64) -> np.ndarray:
+
+def _finite_array(
+    values: object, field: str, ndim: int, dtype: type = np.float64, *, limit: float, unit: str = ""
+) -> np.ndarray:
+    """``values`` as an ``ndim``-dimensional array of ``dtype``, every value finite and at most
+    ``limit`` (in ``unit``) in magnitude; otherwise an :class:`InvalidInputError` on ``field``."""
     try:
-        array: np.ndarray = np.asarray(values, dtype=dtype)
+        array: np.ndarray = np.asarray(values, dtype=np.float64)  # checked before a narrower dtype could overflow
     except (TypeError, ValueError) as error:
         raise InvalidInputError(field, f"must be numeric ({error})") from None
     if array.ndim != ndim:
         raise InvalidInputError(field, f"must have {ndim} dimension(s), got shape {array.shape}")
     if not np.all(np.isfinite(array)):
         raise InvalidInputError(field, "contains NaN or infinite values")
-    return array
+    peak = float(np.abs(array).max(initial=0.0))
+    if peak > limit:
+        raise InvalidInputError(
+            field, f"values must lie within ±{limit:,.0f}{unit}, got one of magnitude {peak:.3g}{unit}"
+        )
+    return array if dtype is np.float64 else array.astype(dtype)
 
 
 @dataclass(frozen=True)
@@ -42,7 +64,7 @@ class PointCloud:
     points: np.ndarray
 
     def __post_init__(self) -> None:
-        points = _finite_array(self.points, "point_cloud.points", 2)
+        points = _finite_array(self.points, "point_cloud.points", 2, limit=MAX_COORDINATE_METRES, unit=" m")
         if points.shape[1] != 3:
             raise InvalidInputError("point_cloud.points", f"must be (n, 3) xyz rows, got shape {points.shape}")
         if points.shape[0] == 0:
@@ -58,7 +80,7 @@ class Audio:
     sample_rate: int
 
     def __post_init__(self) -> None:
-        samples = _finite_array(self.samples, "audio.samples", 1, np.float32)
+        samples = _finite_array(self.samples, "audio.samples", 1, np.float32, limit=MAX_AUDIO_MAGNITUDE)
         if samples.size == 0:
             raise InvalidInputError("audio.samples", "is empty (zero-length audio)")
         if not (MIN_SAMPLE_RATE <= int(self.sample_rate) <= MAX_SAMPLE_RATE):
@@ -77,8 +99,8 @@ class FingerSeries:
     proprioceptive: np.ndarray
 
     def __post_init__(self) -> None:
-        haptic = _finite_array(self.haptic, "finger.haptic", 1)
-        proprioceptive = _finite_array(self.proprioceptive, "finger.proprioceptive", 1)
+        haptic = _finite_array(self.haptic, "finger.haptic", 1, limit=MAX_FINGER_MAGNITUDE)
+        proprioceptive = _finite_array(self.proprioceptive, "finger.proprioceptive", 1, limit=MAX_FINGER_MAGNITUDE)
         if haptic.size < 2:
             raise InvalidInputError("finger.haptic", "needs at least 2 samples")
         if haptic.shape != proprioceptive.shape:

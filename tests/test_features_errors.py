@@ -39,6 +39,12 @@ def _tamper(payload: object, **fields: object) -> object:
         (GOOD.ravel(), r"cloud.points: must have 2 dimension\(s\)"),
         (np.empty((0, 3)), "cloud.points: is empty"),
         ([["a", "b", "c"]] * 30, "cloud.points: must be numeric"),
+        # Finite but squared past float64 in the surface fit: LinAlgError, a 500 at the service.
+        (
+            GOOD / np.abs(GOOD).max() * 1e200,
+            r"cloud.points: values must lie within ±1,000 m, got one of magnitude 1e\+200 m",
+        ),
+        (GOOD + 1_001.0, r"cloud.points: values must lie within ±1,000 m, got one of magnitude 1e\+03 m"),
     ],
 )
 def test_bad_clouds_name_the_cloud_field(points: object, message: str) -> None:
@@ -120,3 +126,26 @@ def test_recording_features_gives_the_entity_and_one_effect_per_behaviour() -> N
     assert list(effects) == ["grasp", "push forward", "shake"]
     np.testing.assert_array_equal(effects["push forward"], effect_features(cloud, moved))
     assert not effects["grasp"].any()
+
+
+def test_magnitudes_past_what_the_features_can_square_are_refused_on_the_payloads_field() -> None:
+    """The bounds of core.payloads: far beyond a real sensor's range, far inside float overflow.
+    Audio of 1e20 overflowed the spectrum's float32 power, and the error named no request field."""
+    cloud_on_the_bound = GOOD / np.abs(GOOD).max() * 1_000.0
+    assert np.all(np.isfinite(visual_features(cloud_on_the_bound)))
+    loud = np.sin(np.arange(16_000) / 3.0)
+    assert np.all(np.isfinite(audio_features(Audio(loud * 2.0**31, 16_000))))  # 32-bit integer PCM is read
+    with pytest.raises(
+        InvalidInputError, match=r"audio.samples: values must lie within ±2,147,483,648, got one of magnitude 1e\+20"
+    ):
+        Audio(loud * 1e20, 16_000)
+    with pytest.raises(
+        InvalidInputError, match=r"audio.samples: values must lie within ±2,147,483,648, got one of magnitude 1e\+300"
+    ):
+        Audio(loud * 1e300, 16_000)  # past float32 too: checked before the conversion
+    with pytest.raises(
+        InvalidInputError, match=r"finger.haptic: values must lie within ±1,000,000,000, got one of magnitude 1e\+160"
+    ):
+        FingerSeries(np.linspace(0.0, 1e160, 50), np.zeros(50))
+    with pytest.raises(InvalidInputError, match=r"finger.proprioceptive: values must lie within ±1,000,000,000"):
+        FingerSeries(np.zeros(50), np.full(50, -2e9))

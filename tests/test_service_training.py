@@ -124,6 +124,30 @@ def test_a_raw_object_is_extracted_and_perceived(client: TestClient, fitted_mode
     ) == pytest.approx(1.0)
 
 
+def test_raw_values_past_a_sensors_range_are_a_422_naming_the_payload_not_a_500(
+    client: TestClient, fitted_model
+) -> None:
+    """Finite coordinates of 1e200 m overflowed the surface fit's covariance (LinAlgError: a 500), and
+    audio samples of 1e20 its float32 spectrum (a 422 on no field of the request): core/payloads.py's bounds."""
+    model_id, _ = fitted_model
+    cloud = (0.04 * np.random.default_rng(1).normal(size=(300, 3))).tolist()
+    far = (np.asarray(cloud) * 1e200).tolist()
+    loud = {"samples": (np.sin(np.arange(4_000) / 3.0) * 1e20).tolist(), "sample_rate": 8_000}
+    shake = {"behaviour": "shake", "before": {"points": cloud}, "after": {"points": cloud}, "audio": loud}
+    for raw, field, bound in (
+        ({"look": {"points": far}}, "objects[0].raw.look.points", "±1,000 m"),
+        (
+            {"look": {"points": cloud}, "interactions": [shake]},
+            "objects[0].raw.interactions[0].audio.samples",
+            "±2,147,483,648",
+        ),
+    ):
+        response = client.post(f"/v1/models/{model_id}/scenes", json={"objects": [{"raw": raw}]})
+        assert response.status_code == 422, response.text
+        assert response.json()["field"] == field and bound in response.json()["detail"]
+    assert client.get(f"/v1/models/{model_id}").json()["scene_count"] == 0
+
+
 def test_planning_prunes_by_the_learned_context(
     client: TestClient, model_id: str, world: World, training_objects: list[dict]
 ) -> None:

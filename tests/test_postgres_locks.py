@@ -19,7 +19,9 @@ from pathlib import Path
 
 import psycopg
 import pytest
+from sqlalchemy import text
 
+from storage.database import create_database_engine
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
 from tests.faults import KeyedPost, create_model, fresh_postgres_database, libpq_url, model_invariants, post_keyed_once
 from tests.servers import running_server
@@ -78,3 +80,36 @@ def test_a_lock_held_elsewhere_stalls_its_model_only(tmp_path: Path) -> None:
             sent = [post for post in posts[name] if post.statuses]
             assert model_invariants(url, [server.base_url], models[name], sent) == [], name
         assert "Traceback" not in server.log(1_000_000)
+
+
+def test_every_connection_asks_postgresql_to_end_a_vanished_clients_transaction() -> None:
+    """The server's side of each connection ends a transaction whose client vanished: by keepalives
+    when the link was quiet, by ``tcp_user_timeout`` when its last answer went unacknowledged (a
+    veth link cut under a writer left its backend holding the model's lock for the whole cut
+    without it: storage/database.py), and by the idle-in-transaction time-out otherwise. Read back
+    from the server, so an option PostgreSQL did not take fails here."""
+    with fresh_postgres_database("contextweb_session") as url:
+        engine = create_database_engine(url)
+        try:
+            with engine.connect() as connection:
+                settings = {
+                    name: connection.execute(text(f"SHOW {name}")).scalar()
+                    for name in (
+                        "lock_timeout",
+                        "idle_in_transaction_session_timeout",
+                        "tcp_keepalives_idle",
+                        "tcp_keepalives_interval",
+                        "tcp_keepalives_count",
+                        "tcp_user_timeout",
+                    )
+                }
+        finally:
+            engine.dispose()
+    assert settings == {
+        "lock_timeout": "10s",
+        "idle_in_transaction_session_timeout": "1min",
+        "tcp_keepalives_idle": "5",
+        "tcp_keepalives_interval": "2",
+        "tcp_keepalives_count": "2",
+        "tcp_user_timeout": "5000",  # milliseconds
+    }

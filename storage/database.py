@@ -79,12 +79,12 @@ POSTGRES_CONNECT_ARGS: dict[str, Any] = {
 #: would retransmit it for ~15 minutes). A transaction left idle (never one of ours: they are
 #: milliseconds) ends after a minute. ``tcp_user_timeout`` needs PostgreSQL 12 or newer.
 #:
-#: Why ``tcp_user_timeout``: a server process in a network namespace whose veth link to PostgreSQL
-#: was taken down while it wrote (docs/scaling.md, "Drills by hand") left a backend idle in
-#: transaction holding the model's row lock, its lock answer unacknowledged, and the other process's
-#: writes to that model waited behind it for the whole cut (20 s; one scene acknowledged there in
-#: two runs); with the timeout on the server's side of the link the backend ended 5 s after its
-#: answer went unacknowledged, and the other process acknowledged 3,330 and 3,099 scenes meanwhile.
+#: Why ``tcp_user_timeout``: a ``--workers 2`` server in a network namespace whose veth link to
+#: PostgreSQL was taken down for 20 s while it wrote (docs/scaling.md, "Failure cases") left a
+#: backend idle in transaction holding the model's row lock, its last answer unacknowledged, and
+#: another server's writes to that model waited behind it: 1 and 1,978 scenes acknowledged during
+#: the cut in two runs (longest attempts 20.0 and 9.2 s); with the setting, 3,735, 3,646 and 3,512
+#: in three (longest 0.2, 5.5 and 0.2 s).
 POSTGRES_SESSION_OPTIONS = (
     "-c lock_timeout=10s -c idle_in_transaction_session_timeout=60s "
     "-c tcp_keepalives_idle=5 -c tcp_keepalives_interval=2 -c tcp_keepalives_count=2 -c tcp_user_timeout=5000"

@@ -476,8 +476,10 @@ class TcpProxy:
     a Go server binary, which no registry this machine reaches packages (PyPI has
     only clients of it: ``toxiproxy-python``, ``chaostoolkit-toxiproxy``; Debian has
     no ``toxiproxy`` package), and no maintained pure-Python fault proxy is in the
-    package lists. Network namespaces would cut real links, but need veth and
-    routing set up per test; a loopback proxy is enough to partition one process.
+    package lists. A network namespace cuts a real link, and docs/scaling.md's drill
+    with one found what this proxy cannot show (a backend whose last answer went
+    unacknowledged: the kernel here acknowledges everything), but it needs root,
+    veth pairs and a PostgreSQL that listens beyond loopback: not for every test run.
     """
 
     def __init__(self, target_port: int = 5432, target_host: str = "127.0.0.1") -> None:

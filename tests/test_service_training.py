@@ -206,6 +206,18 @@ def _stored_version(engine: Engine, model_id: str) -> int | None:
         return stored_version(session, model_id)
 
 
+def test_a_fit_without_any_effect_says_what_is_missing(
+    client: TestClient, model_id: str, training_objects: list[dict]
+) -> None:
+    """It said "the training set is empty" though every object was there, only their effects were not."""
+    without_effects = [{**obj, "features": {**obj["features"], "effects": {}}} for obj in training_objects]
+    assert client.post(f"/v1/models/{model_id}/training-objects", json={"objects": without_effects}).status_code == 201
+    response = client.post(f"/v1/models/{model_id}/fit", json={"method": "kmeans"})
+    assert response.status_code == 422
+    assert response.json()["field"] == "training.effect_vectors"
+    assert response.json()["detail"].startswith("no training object carries an effect (its features' effects")
+
+
 def test_a_keyed_training_batch_retried_is_answered_again_and_adds_nothing(
     client: TestClient, model_id: str, training_objects: list[dict], engine: Engine
 ) -> None:

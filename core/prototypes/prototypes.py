@@ -358,8 +358,17 @@ def fit_prototypes(
     """
     if method not in METHODS:
         raise InvalidInputError("method", f"must be one of {METHODS}, got {method!r}")
-    entities = _training_matrix(entity_vectors, ENTITY_SIZE, "entity_vectors", allow_empty=False)
-    effects = _training_matrix(effect_vectors, EFFECT_SIZE, "effect_vectors", allow_empty=not vocabulary.verbs)
+    entities = _training_matrix(
+        entity_vectors, ENTITY_SIZE, "entity_vectors", allow_empty=False, empty="there is no training object"
+    )
+    effects = _training_matrix(
+        effect_vectors,
+        EFFECT_SIZE,
+        "effect_vectors",
+        allow_empty=not vocabulary.verbs,
+        empty="no training object carries an effect (its features' effects, or its interactions at the raw "
+        f"level), and the vocabulary's {len(vocabulary.verbs)} verbs each need one",
+    )
     entity_members = _entity_membership(vocabulary, entity_concepts, len(entities))
     verb_members = _verb_membership(vocabulary, effect_verbs, len(effects))
 
@@ -417,12 +426,13 @@ def fit_prototypes(
     )
 
 
-def _training_matrix(values: object, size: int, field_name: str, *, allow_empty: bool) -> np.ndarray:
+def _training_matrix(values: object, size: int, field_name: str, *, allow_empty: bool, empty: str) -> np.ndarray:
+    """The (n, ``size``) training rows, validated; ``empty`` says what is missing when there are none."""
     array = np.asarray(values, dtype=np.float64) if np.asarray(values).size else np.zeros((0, size))
     if array.ndim != 2:
         raise InvalidInputError(field_name, f"must be an (n, {size}) matrix, got shape {array.shape}")
     if len(array) == 0 and not allow_empty:
-        raise InvalidInputError(field_name, "the training set is empty")
+        raise InvalidInputError(field_name, empty)
     return _feature_rows(array, size, field_name)
 
 

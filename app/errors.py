@@ -108,6 +108,22 @@ class IdempotencyKeyReused(ContextwebError):
         )
 
 
+class KeyAlreadyCreated(ContextwebError):
+    """A retry of a keyed ``POST /v1/keys`` whose key was made: its secret was in the first answer
+    only (only its hash is stored), so it cannot be answered again (app/services/keys.py)."""
+
+    error = "key_already_created"
+    status_code = 409
+
+    def __init__(self, idempotency_key: str, key_id: str) -> None:
+        super().__init__(
+            f"Idempotency-Key {idempotency_key!r} already created key {key_id!r}, whose secret was shown "
+            f"in that answer only: if it was lost, revoke {key_id!r} (DELETE /v1/keys/{key_id}) and create "
+            "another under a new Idempotency-Key",
+            field="header.Idempotency-Key",
+        )
+
+
 class Unauthorized(ContextwebError):
     error = "unauthorized"
     status_code = 401

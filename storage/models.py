@@ -323,7 +323,12 @@ class ApiKey(Base):
     """
 
     __tablename__ = "api_key"
-    __table_args__ = (CheckConstraint("role IN ('read', 'write', 'admin')", name="role"),)
+    __table_args__ = (
+        CheckConstraint("role IN ('read', 'write', 'admin')", name="role"),
+        Index(
+            "ix_api_key_idempotency_key", "idempotency_key", unique=True, sqlite_where=_KEYED, postgresql_where=_KEYED
+        ),
+    )
 
     id: Mapped[str] = mapped_column(String(32), primary_key=True)
     """The lookup id, the public middle part of the key (``cw_<id>_<secret>``)."""
@@ -336,3 +341,7 @@ class ApiKey(Base):
     """Hex SHA-256 of the whole key (app/auth.py says why not a slow KDF)."""
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
     revoked_at: Mapped[datetime | None] = mapped_column()
+    idempotency_key: Mapped[str | None] = mapped_column(String(200))
+    """The Idempotency-Key the key was created under (alembic 0011); null without one."""
+    request_hash: Mapped[bytes | None] = mapped_column(LargeBinary)
+    """The SHA-256 digest of the creation's body, which a retry under ``idempotency_key`` must match."""

@@ -208,3 +208,67 @@ def test_the_cli_creates_lists_and_revokes_keys(
     assert "no model 'nosuchmodel'" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["keys", "create", "--name", "x", "--role", "owner"])
+
+
+def test_a_keyed_key_creation_retried_makes_no_second_key_and_names_the_first(secured: TestClient) -> None:
+    """Before, the Idempotency-Key was ignored and a retry made a second key whose secret nobody held.
+    The secret is stored only as a hash, so a retry cannot get it again: a 409 names the key to revoke."""
+    body = {"name": "robot-7", "role": "write", "models": None}
+    headers = {**ADMIN, "Idempotency-Key": "key-creation-1"}
+    first = secured.post("/v1/keys", json=body, headers=headers)
+    assert first.status_code == 201
+    created = first.json()
+    retried = secured.post("/v1/keys", json=body, headers=headers)
+    assert retried.status_code == 409
+    error = retried.json()
+    assert error["error"] == "key_already_created" and error["field"] == "header.Idempotency-Key"
+    assert f"created key {created['id']!r}" in error["detail"] and f"DELETE /v1/keys/{created['id']}" in error["detail"]
+    assert "cw_" not in retried.text  # never the secret
+    assert [key["id"] for key in secured.get("/v1/keys", headers=ADMIN).json() if key["name"] == "robot-7"] == [
+        created["id"]
+    ]
+    assert secured.get("/v1/models", headers={"X-API-Key": created["key"]}).status_code == 200
+
+    other_body = secured.post("/v1/keys", json={**body, "role": "read"}, headers=headers)
+    assert other_body.status_code == 422 and other_body.json()["error"] == "idempotency_key_reused"
+
+    assert secured.delete(f"/v1/keys/{created['id']}", headers=ADMIN).status_code == 204
+    again = secured.post("/v1/keys", json=body, headers={**ADMIN, "Idempotency-Key": "key-creation-2"})
+    assert again.status_code == 201 and again.json()["id"] != created["id"]
+    assert secured.get("/v1/models", headers={"X-API-Key": again.json()["key"]}).status_code == 200
+
+
+def test_keyless_key_creations_each_make_a_key(secured: TestClient) -> None:
+    body = {"name": "dashboard", "role": "read", "models": None}
+    ids = {secured.post("/v1/keys", json=body, headers=ADMIN).json()["id"] for _ in range(2)}
+    assert len(ids) == 2
+
+
+def test_two_creations_racing_on_one_idempotency_key_make_one_key(
+    secured: TestClient, engine: Engine, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The later creation's lookup ran before the earlier one committed (its look-up is made to find
+    nothing, as it would then): its insert meets the key's unique index in the database, is undone,
+    and is answered 409 naming the earlier key."""
+    from sqlalchemy.orm import Session
+
+    from app.errors import KeyAlreadyCreated
+    from app.schemas.keys import ApiKeyCreate
+    from app.services import keys as key_service
+    from storage.repositories import api_keys as api_key_repository
+
+    body = {"name": "racer", "role": "write", "models": None}
+    earlier = secured.post("/v1/keys", json=body, headers={**ADMIN, "Idempotency-Key": "raced"}).json()
+    find = api_key_repository.find_by_idempotency_key
+    calls: list[str] = []
+
+    def not_yet_committed(session: Session, idempotency_key: str) -> ApiKey | None:
+        calls.append(idempotency_key)
+        return None if len(calls) == 1 else find(session, idempotency_key)
+
+    monkeypatch.setattr(api_key_repository, "find_by_idempotency_key", not_yet_committed)
+    with Session(engine) as session, pytest.raises(KeyAlreadyCreated) as refused:
+        key_service.create_key(session, ApiKeyCreate.model_validate(body), "raced")
+    assert refused.value.status_code == 409 and earlier["id"] in refused.value.message and len(calls) == 2
+    with Session(engine) as session:
+        assert session.scalars(select(ApiKey.id).where(ApiKey.name == "racer")).all() == [earlier["id"]]

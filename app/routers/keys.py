@@ -6,8 +6,16 @@ from typing import Annotated
 
 from fastapi import APIRouter, Path, status
 
-from app.deps import AdminAccess, ReadSessionDep, WriteSessionDep
-from app.errors import Forbidden, InvalidInput, KeyNotFound, Unauthorized, error_responses
+from app.deps import AdminAccess, IdempotencyKey, ReadSessionDep, WriteSessionDep
+from app.errors import (
+    Forbidden,
+    IdempotencyKeyReused,
+    InvalidInput,
+    KeyAlreadyCreated,
+    KeyNotFound,
+    Unauthorized,
+    error_responses,
+)
 from app.routing import JsonBodyRoute
 from app.schemas.keys import ApiKeyCreate, ApiKeyCreated, ApiKeyRead
 from app.services import keys as key_service
@@ -20,10 +28,12 @@ _AUTH = (Unauthorized, Forbidden)
     "",
     status_code=status.HTTP_201_CREATED,
     summary="Create an API key (its secret is in this answer only)",
-    responses=error_responses(InvalidInput, *_AUTH),
+    responses=error_responses(InvalidInput, IdempotencyKeyReused, KeyAlreadyCreated, *_AUTH),
 )
-def create_key(body: ApiKeyCreate, session: WriteSessionDep) -> ApiKeyCreated:
-    return key_service.create_key(session, body)
+def create_key(body: ApiKeyCreate, session: WriteSessionDep, idempotency_key: IdempotencyKey = None) -> ApiKeyCreated:
+    """With an Idempotency-Key, a retry (the same key and body) makes no second key: the secret was in
+    the first answer only, so the retry is a 409 `key_already_created` naming the key to revoke."""
+    return key_service.create_key(session, body, idempotency_key)
 
 
 @router.get("", summary="List the API keys (never their secrets)", responses=error_responses(*_AUTH))

@@ -2,21 +2,31 @@
 
 from __future__ import annotations
 
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from app.auth import generate_key
-from app.errors import InvalidInput, KeyNotFound
+from app.errors import InvalidInput, KeyAlreadyCreated, KeyNotFound
 from app.schemas.keys import ApiKeyCreate, ApiKeyCreated, ApiKeyRead
+from app.services.idempotency import check_retry, request_digest
 from storage.models import ApiKey, utc_now
 from storage.repositories import api_keys as api_key_repository
 
 
-def create_key(session: Session, body: ApiKeyCreate) -> ApiKeyCreated:
+def create_key(session: Session, body: ApiKeyCreate, idempotency_key: str | None = None) -> ApiKeyCreated:
     """A new key; the answer is the only place its secret ever appears.
 
     The scope's models must exist (a mistyped id would make a key that opens nothing), and an
     admin key cannot be scoped: it could create a key of every model.
+
+    ``idempotency_key``: a retry with the same key and body finds the key that creation made, and,
+    as its secret is stored only as a hash, is answered 409 :class:`KeyAlreadyCreated` naming it
+    (revoke it and create another) instead of making a second key nobody holds; with another body,
+    422 ``idempotency_key_reused``. Two creations racing on one key meet at its unique index.
     """
+    request_hash = request_digest(idempotency_key, body)
+    if idempotency_key is not None:
+        _refuse_a_retry(session, idempotency_key, request_hash)
     if body.models is not None:
         if body.role == "admin":
             raise InvalidInput("models", "an admin key is a key of every model: send models null")
@@ -25,16 +35,32 @@ def create_key(session: Session, body: ApiKeyCreate) -> ApiKeyCreated:
             if model_id not in existing:
                 raise InvalidInput(f"models[{index}]", f"no model {model_id!r}")
     new = generate_key()
-    row = api_key_repository.add_api_key(
-        session,
-        key_id=new.key_id,
-        name=body.name,
-        role=body.role,
-        model_ids=None if body.models is None else sorted(set(body.models)),
-        prefix=new.prefix,
-        secret_hash=new.secret_hash,
-    )
+    try:
+        with session.begin_nested():
+            row = api_key_repository.add_api_key(
+                session,
+                key_id=new.key_id,
+                name=body.name,
+                role=body.role,
+                model_ids=None if body.models is None else sorted(set(body.models)),
+                prefix=new.prefix,
+                secret_hash=new.secret_hash,
+                idempotency_key=idempotency_key,
+                request_hash=request_hash,
+            )
+    except IntegrityError:
+        if idempotency_key is not None:
+            _refuse_a_retry(session, idempotency_key, request_hash)
+        raise  # another constraint: not a race on the Idempotency-Key
     return ApiKeyCreated(**key_read(row).model_dump(), key=new.key)
+
+
+def _refuse_a_retry(session: Session, idempotency_key: str, request_hash: bytes | None) -> None:
+    """Raise if a key was already created under ``idempotency_key``: 422 for another body, else 409."""
+    stored = api_key_repository.find_by_idempotency_key(session, idempotency_key)
+    if stored is not None:
+        check_retry(idempotency_key, stored.request_hash, request_hash)
+        raise KeyAlreadyCreated(idempotency_key, stored.id)
 
 
 def list_keys(session: Session) -> list[ApiKeyRead]:

@@ -20,11 +20,27 @@ def add_api_key(
     model_ids: list[str] | None,
     prefix: str,
     secret_hash: str,
+    idempotency_key: str | None = None,
+    request_hash: bytes | None = None,
 ) -> ApiKey:
-    key = ApiKey(id=key_id, name=name, role=role, model_ids=model_ids, prefix=prefix, secret_hash=secret_hash)
+    key = ApiKey(
+        id=key_id,
+        name=name,
+        role=role,
+        model_ids=model_ids,
+        prefix=prefix,
+        secret_hash=secret_hash,
+        idempotency_key=idempotency_key,
+        request_hash=request_hash,
+    )
     session.add(key)
     session.flush()
     return key
+
+
+def find_by_idempotency_key(session: Session, idempotency_key: str) -> ApiKey | None:
+    """The key created under ``idempotency_key``, if any (its unique index)."""
+    return session.scalars(select(ApiKey).where(ApiKey.idempotency_key == idempotency_key)).first()
 
 
 def get_api_key(session: Session, key_id: str) -> ApiKey | None:

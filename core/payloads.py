@@ -47,9 +47,9 @@ def _finite_array(
         raise InvalidInputError(field, f"must be numeric ({error})") from None
     if array.ndim != ndim:
         raise InvalidInputError(field, f"must have {ndim} dimension(s), got shape {array.shape}")
-    if not np.all(np.isfinite(array)):
+    peak = float(np.abs(array).max(initial=0.0))  # one pass: NaN and infinity carry into the peak
+    if not np.isfinite(peak):
         raise InvalidInputError(field, "contains NaN or infinite values")
-    peak = float(np.abs(array).max(initial=0.0))
     if peak > limit:
         raise InvalidInputError(
             field, f"values must lie within ±{limit:,.0f}{unit}, got one of magnitude {peak:.3g}{unit}"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from contextlib import nullcontext
+
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -36,7 +38,8 @@ def create_key(session: Session, body: ApiKeyCreate, idempotency_key: str | None
                 raise InvalidInput(f"models[{index}]", f"no model {model_id!r}")
     new = generate_key()
     try:
-        with session.begin_nested():
+        # A savepoint only where a racing retry can meet the Idempotency-Key's unique index.
+        with session.begin_nested() if idempotency_key is not None else nullcontext():
             row = api_key_repository.add_api_key(
                 session,
                 key_id=new.key_id,

@@ -382,7 +382,7 @@ _BIND_PROCESSORS: dict[tuple[str, str, int], Callable[[Any], Any]] = {}
 
 
 @contextmanager
-def pipelined(session: Session, *, commit: bool = False) -> Iterator[None]:
+def pipelined(session: Session, *, begin: bool = False, commit: bool = False) -> Iterator[None]:
     """Send the block's statements to PostgreSQL in one round trip (psycopg's pipeline mode);
     no effect on SQLite, whose statements make no round trip.
 
@@ -390,11 +390,22 @@ def pipelined(session: Session, *, commit: bool = False) -> Iterator[None]:
     error, or a lost connection, arrives then, not at the statement) are raised as SQLAlchemy's,
     as a statement's are (``OperationalError`` …): a storage failure, never a bare driver error.
 
+    ``begin``: when the session has not begun its transaction yet, the block begins it, its
+    ``BEGIN`` going in the same round trip. psycopg sends a transaction's implicit ``BEGIN`` with
+    a sync of its own, which waits for the server: one more round trip a write (docs/benchmarks.md).
+    The transaction's connection is then taken with SQLAlchemy's ``AUTOCOMMIT`` isolation level
+    (psycopg's autocommit: it sends no ``BEGIN`` of its own) and the block sends ``BEGIN`` first, so
+    the transaction is the same as the implicit one (the default isolation level); the session's
+    commit and rollback still reach the server (psycopg's follow the transaction's status, not its
+    autocommit flag), and SQLAlchemy resets the level when the connection returns to its pool.
+    In a session already in its transaction, and on SQLite, ``begin`` changes nothing.
+
     ``commit``: the block ends the session's transaction, its ``COMMIT`` going in the same round
     trip (pending ORM changes are flushed first). Nothing may run in the session after the block
     but its commit, which then finds the transaction ended (psycopg's commit of an idle connection
     sends nothing). On SQLite the session commits as usual."""
-    connection = session.connection()
+    explicit_begin = begin and not session.in_transaction() and session.get_bind().dialect.name == "postgresql"
+    connection = session.connection(execution_options={"isolation_level": "AUTOCOMMIT"} if explicit_begin else None)
     driver = connection.connection.driver_connection
     pipeline = getattr(driver, "pipeline", None)
     if driver is None or pipeline is None:
@@ -402,6 +413,9 @@ def pipelined(session: Session, *, commit: bool = False) -> Iterator[None]:
         return
     try:
         with pipeline():
+            if explicit_begin:
+                with driver.cursor() as cursor:
+                    cursor.execute("BEGIN", prepare=False)
             yield
             if commit:
                 session.flush()

@@ -6,9 +6,12 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
 
 import pytest
-from sqlalchemy import Engine, text
+from psycopg import pq
+from sqlalchemy import Engine, event, text
 from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -100,6 +103,89 @@ def test_a_pipeline_that_commits_stores_all_of_its_statements_or_none(postgres: 
     with unit_of_work(sessions) as session:
         _insert(session, 6)
     assert _stored(postgres) == [1, 2, 3, 6]
+
+
+class ProtocolTrace:
+    """libpq's trace of every message on the connections ``engine`` checks out (psycopg's
+    ``PGconn.trace``): what was sent, not what a mock says was sent."""
+
+    def __init__(self, engine: Engine, folder: Path) -> None:
+        self._file = (folder / "libpq-trace.txt").open("w+")
+        event.listen(engine, "checkout", self._trace)
+
+    def _trace(self, dbapi_connection: Any, _record: Any, _proxy: Any) -> None:
+        dbapi_connection.pgconn.trace(self._file.fileno())
+        dbapi_connection.pgconn.set_trace_flags(pq.Trace.SUPPRESS_TIMESTAMPS | pq.Trace.REGRESS_MODE)
+
+    def sent(self) -> list[str]:
+        """The messages the client sent, as "Sync", 'Parse "" "BEGIN"' and so on."""
+        self._file.flush()
+        self._file.seek(0)
+        return [
+            " ".join(part.strip() for part in line.split("\t")[2:])
+            for line in self._file.read().splitlines()
+            if line.startswith("F\t")
+        ]
+
+
+def _syncs_before_commit(messages: list[str]) -> int:
+    return messages[: messages.index('Query "COMMIT"')].count("Sync")
+
+
+@pytest.mark.postgres
+def test_a_pipeline_that_begins_the_transaction_sends_its_begin_in_its_own_round_trip(
+    postgres: Engine, tmp_path: Path
+) -> None:
+    # psycopg sends a transaction's implicit BEGIN with a Sync of its own, a round trip before the
+    # block's statements are even sent; with begin=True the BEGIN goes in the block's one Sync.
+    trace = ProtocolTrace(postgres, tmp_path)
+    sessions = sessionmaker(bind=postgres)
+    for begin, syncs in ((False, 2), (True, 1)):
+        start = len(trace.sent())
+        with unit_of_work(sessions) as session, pipelined(session, begin=begin):
+            _insert(session, 10 + begin)
+        sent = trace.sent()[start:]
+        assert _syncs_before_commit(sent) == syncs, sent
+        assert 'Parse "" "BEGIN" 0' in sent[: sent.index("Sync")], sent
+    assert _stored(postgres) == [10, 11]
+
+
+@pytest.mark.postgres
+def test_a_transaction_begun_in_a_pipeline_is_one_transaction_and_its_connection_returns_as_it_was(
+    postgres: Engine,
+) -> None:
+    sessions = sessionmaker(bind=postgres)
+    # Its statements are one transaction, not each committed on its own: all undone by a rollback …
+    with sessions() as session:
+        with pipelined(session, begin=True):
+            _insert(session, 1, 2)
+        assert session.connection().connection.driver_connection.info.transaction_status == pq.TransactionStatus.INTRANS
+        session.rollback()
+    assert _stored(postgres) == []
+    # … all undone when one of them fails …
+    with pytest.raises(IntegrityError), unit_of_work(sessions) as session, pipelined(session, begin=True):
+        _insert(session, 3, 3)
+    assert _stored(postgres) == []
+    # … and stored together by the commit, which a pipeline that both begins and commits sends too.
+    with unit_of_work(sessions) as session, pipelined(session, begin=True, commit=True):
+        _insert(session, 4, 5)
+    assert _stored(postgres) == [4, 5]
+    # The pool's connection is back in psycopg's default mode, where the next session's
+    # statements begin a transaction implicitly again (a read's snapshot relies on it).
+    with sessions() as session:
+        driver = session.connection().connection.driver_connection
+        assert driver.autocommit is False
+        _insert(session, 6)
+        assert driver.info.transaction_status == pq.TransactionStatus.INTRANS
+        session.rollback()
+    assert _stored(postgres) == [4, 5]
+    # In a session whose transaction has begun, begin=True changes nothing.
+    with sessions() as session:
+        _insert(session, 7)
+        with pipelined(session, begin=True):
+            _insert(session, 8)
+        session.rollback()
+    assert _stored(postgres) == [4, 5]
 
 
 @pytest.mark.parametrize("backend", BACKENDS)

@@ -531,18 +531,19 @@ def lock_model(
     """The model locked for this transaction's writes, with its stored version and its contexts'
     labels (None: no such model), and with ``idempotency_key`` the scene stored under that key.
     PostgreSQL locks the state row (``FOR UPDATE``, which waits for the lock and then reads the
-    row's newest version), and the lock and the reads (run after the lock is held, so they see
-    every write committed before it) go in one round trip; SQLite's write transactions already
-    hold the database's write lock (``BEGIN IMMEDIATE``).
+    row's newest version), and the transaction's ``BEGIN``, the lock and the reads (run after the
+    lock is held, so they see every write committed before it) go in one round trip
+    (``pipelined(begin=True)``); SQLite's write transactions already hold the database's write
+    lock (``BEGIN IMMEDIATE``).
 
     ``wait=False``: on PostgreSQL, raises :class:`LockHeldElsewhere` at once (``NOWAIT``; the
     transaction is then aborted) instead of waiting for a lock that another transaction holds;
     on SQLite, the same as ``wait=True``."""
-    driver = DriverStatements(session)
-    lock = "" if driver.dialect.name != "postgresql" else " FOR UPDATE" if wait else " FOR UPDATE NOWAIT"
     queued: list[QueuedRows] = []
     try:
-        with pipelined(session):
+        with pipelined(session, begin=True):
+            driver = DriverStatements(session)
+            lock = "" if driver.dialect.name != "postgresql" else " FOR UPDATE" if wait else " FOR UPDATE NOWAIT"
             queued.append(driver.submit(_SELECT_VERSION + lock, (model_id,)))
             queued.append(submit_context_labels(driver, model_id))
             if idempotency_key is not None:

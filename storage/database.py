@@ -445,6 +445,28 @@ def snapshot(sessions: sessionmaker[Session]) -> Iterator[Session]:
             session.rollback()
 
 
+@contextmanager
+def single_read(sessions: sessionmaker[Session]) -> Iterator[Session]:
+    """A read-only session for one statement, which sees one consistent state of the database by
+    itself. On PostgreSQL its connection is in autocommit (SQLAlchemy's ``AUTOCOMMIT`` level, reset
+    when the connection returns to the pool): the statement is its own transaction, one round trip,
+    where :func:`snapshot`'s ``BEGIN``, statement and ``ROLLBACK`` are three (psycopg waits for each).
+    On SQLite the same as :func:`snapshot`. Only for one statement: two would each see their own state."""
+    if sessions.kw["bind"].dialect.name != "postgresql":
+        with snapshot(sessions) as session:
+            yield session
+        return
+    with sessions() as session:
+        try:
+            session.connection(execution_options={"isolation_level": "AUTOCOMMIT"})
+            yield session
+        except BaseException as error:
+            mark_failure(session, error)
+            raise
+        finally:
+            session.rollback()
+
+
 def with_lock_wait(sessions: sessionmaker[Session], milliseconds: int) -> sessionmaker[Session]:
     """``sessions`` whose SQLite transactions wait at most ``milliseconds`` for the write lock instead
     of the busy timeout (the readiness probe must answer promptly); no effect on PostgreSQL."""

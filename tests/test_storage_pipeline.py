@@ -16,7 +16,7 @@ from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.errors import is_storage_failure
-from storage.database import DriverStatements, create_database_engine, pipelined
+from storage.database import DriverStatements, create_database_engine, pipelined, single_read, snapshot
 from storage.repositories import contexts as context_repository
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import models as model_repository
@@ -186,6 +186,28 @@ def test_a_transaction_begun_in_a_pipeline_is_one_transaction_and_its_connection
             _insert(session, 8)
         session.rollback()
     assert _stored(postgres) == [4, 5]
+
+
+@pytest.mark.postgres
+def test_a_single_read_is_one_round_trip_and_its_connection_returns_as_it_was(postgres: Engine, tmp_path: Path) -> None:
+    # A request's version check (app/registry.py) is one statement: in a snapshot it cost a BEGIN,
+    # the statement and a ROLLBACK, each waited for; alone, in autocommit, it is one round trip.
+    sessions = sessionmaker(bind=postgres)
+    with unit_of_work(sessions) as session:
+        _insert(session, 1)
+    trace = ProtocolTrace(postgres, tmp_path)
+    for read, transaction_control in ((snapshot, 2), (single_read, 0)):
+        start = len(trace.sent())
+        with read(sessions) as session:
+            assert DriverStatements(session).fetchall("SELECT id FROM pipeline_probe", ()) == [(1,)]
+        sent = trace.sent()[start:]
+        # Each simple query (psycopg's BEGIN, ROLLBACK, a statement without parameters) and each
+        # Sync of the extended protocol is a round trip: psycopg waits for its answer.
+        round_trips = [message for message in sent if message.split()[0] in ("Query", "Sync")]
+        assert len(round_trips) == 1 + transaction_control, sent
+        assert len([message for message in sent if "BEGIN" in message or "ROLLBACK" in message]) == transaction_control
+    with sessions() as session:
+        assert session.connection().connection.driver_connection.autocommit is False
 
 
 @pytest.mark.parametrize("backend", BACKENDS)

@@ -47,6 +47,7 @@ from app.registry import ModelRuntime, ModelWrite
 from app.schemas.common import PRINTABLE_ASCII
 from app.schemas.keys import Role
 from app.state import AppState
+from storage.database import autocommit_reads
 from storage.repositories.incremental_lda import LockHeldElsewhere
 from storage.unit_of_work import unit_of_work
 
@@ -166,7 +167,9 @@ BodySizeDep = Annotated[int, Depends(body_size)]
 
 
 def read_session(state: StateDep) -> Iterator[Session]:
-    with state.read_sessions() as session:
+    """A read route's session: read-only, each statement seeing the database as of its start (no
+    transaction on PostgreSQL: ``storage.database.autocommit_reads``)."""
+    with autocommit_reads(state.read_sessions) as session:
         yield session
 
 

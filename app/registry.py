@@ -45,7 +45,7 @@ from core.errors import InvalidInputError
 from core.planning import BehaviourEffects, Workspace, learn_effects
 from core.prototypes.prototypes import PrototypeSet
 from core.vocabulary import Vocabulary
-from storage.database import single_read, snapshot, with_deadline, write_turn
+from storage.database import autocommit_reads, snapshot, with_deadline, write_turn
 from storage.models import HYPERPARAMETERS_VERSION, Model, TrainingObject
 from storage.repositories import feed as feed_repository
 from storage.repositories import incremental_lda as lda_repository
@@ -719,7 +719,7 @@ class ModelRegistry:
         """The model ``model_id`` as stored now: loaded if another process created it, caught up if
         another process wrote to it; 404 if it does not exist, 503 if it cannot serve. Costs one
         primary-key read when memory is current (read-your-writes across processes)."""
-        with _storage_errors(), single_read(self._version_sessions) as session:
+        with _storage_errors(), autocommit_reads(self._version_sessions) as session:
             version = lda_repository.stored_version(session, model_id)
         model = self._models.get(model_id)
         if version is None:
@@ -796,7 +796,7 @@ class ModelRegistry:
     def synchronise(self) -> list[ModelRuntime]:
         """Every stored model, as stored now (a listing): new ones loaded, deleted ones forgotten, the
         others caught up; one query when nothing changed. Models that cannot serve stay listed."""
-        with _storage_errors(), single_read(self._version_sessions) as session:
+        with _storage_errors(), autocommit_reads(self._version_sessions) as session:
             versions = lda_repository.stored_versions(session)
         for model_id in set(self._models) - set(versions):
             self.forget(self._models[model_id].writer)

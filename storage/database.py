@@ -431,34 +431,29 @@ def snapshot(sessions: sessionmaker[Session]) -> Iterator[Session]:
     """A read-only session whose queries all see one consistent state of the database: PostgreSQL's
     REPEATABLE READ (one snapshot for the whole transaction); on SQLite a WAL read transaction is
     one snapshot from its first read on."""
-    with sessions() as session:
-        try:
-            if session.get_bind().dialect.name == "postgresql":
-                session.connection(
-                    execution_options={"isolation_level": "REPEATABLE READ", "postgresql_readonly": True}
-                )
-            yield session
-        except BaseException as error:
-            mark_failure(session, error)
-            raise
-        finally:
-            session.rollback()
+    with _read_session(sessions, {"isolation_level": "REPEATABLE READ", "postgresql_readonly": True}) as session:
+        yield session
 
 
 @contextmanager
-def single_read(sessions: sessionmaker[Session]) -> Iterator[Session]:
-    """A read-only session for one statement, which sees one consistent state of the database by
-    itself. On PostgreSQL its connection is in autocommit (SQLAlchemy's ``AUTOCOMMIT`` level, reset
-    when the connection returns to the pool): the statement is its own transaction, one round trip,
-    where :func:`snapshot`'s ``BEGIN``, statement and ``ROLLBACK`` are three (psycopg waits for each).
-    On SQLite the same as :func:`snapshot`. Only for one statement: two would each see their own state."""
-    if sessions.kw["bind"].dialect.name != "postgresql":
-        with snapshot(sessions) as session:
-            yield session
-        return
+def autocommit_reads(sessions: sessionmaker[Session]) -> Iterator[Session]:
+    """A session for reads that need no snapshot across statements: on PostgreSQL each statement
+    sees the database as of its own start, as in a transaction of PostgreSQL's default READ
+    COMMITTED level, but without the transaction: its connection is in autocommit (SQLAlchemy's
+    ``AUTOCOMMIT`` level, reset when the connection returns to the pool), which spares psycopg's
+    ``BEGIN`` and the ``ROLLBACK`` at the end, each a round trip it waits for (a one-query read: one
+    round trip instead of three). For reads only: a write in it would commit statement by statement.
+    On SQLite the same as :func:`snapshot`."""
+    with _read_session(sessions, {"isolation_level": "AUTOCOMMIT"}) as session:
+        yield session
+
+
+@contextmanager
+def _read_session(sessions: sessionmaker[Session], postgres_options: dict[str, Any]) -> Iterator[Session]:
     with sessions() as session:
         try:
-            session.connection(execution_options={"isolation_level": "AUTOCOMMIT"})
+            if session.get_bind().dialect.name == "postgresql":
+                session.connection(execution_options=postgres_options)
             yield session
         except BaseException as error:
             mark_failure(session, error)

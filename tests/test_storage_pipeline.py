@@ -16,7 +16,7 @@ from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.errors import is_storage_failure
-from storage.database import DriverStatements, create_database_engine, pipelined, single_read, snapshot
+from storage.database import DriverStatements, autocommit_reads, create_database_engine, pipelined, snapshot
 from storage.repositories import contexts as context_repository
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import models as model_repository
@@ -189,14 +189,16 @@ def test_a_transaction_begun_in_a_pipeline_is_one_transaction_and_its_connection
 
 
 @pytest.mark.postgres
-def test_a_single_read_is_one_round_trip_and_its_connection_returns_as_it_was(postgres: Engine, tmp_path: Path) -> None:
+def test_a_autocommit_reads_is_one_round_trip_and_its_connection_returns_as_it_was(
+    postgres: Engine, tmp_path: Path
+) -> None:
     # A request's version check (app/registry.py) is one statement: in a snapshot it cost a BEGIN,
     # the statement and a ROLLBACK, each waited for; alone, in autocommit, it is one round trip.
     sessions = sessionmaker(bind=postgres)
     with unit_of_work(sessions) as session:
         _insert(session, 1)
     trace = ProtocolTrace(postgres, tmp_path)
-    for read, transaction_control in ((snapshot, 2), (single_read, 0)):
+    for read, transaction_control in ((snapshot, 2), (autocommit_reads, 0)):
         start = len(trace.sent())
         with read(sessions) as session:
             assert DriverStatements(session).fetchall("SELECT id FROM pipeline_probe", ()) == [(1,)]

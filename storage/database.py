@@ -43,6 +43,7 @@ SQLITE_BUSY_TIMEOUT_MS = 5_000
 _WRITE_OPTION = "contextweb_write"
 _LOCK_WAIT_OPTION = "contextweb_lock_wait_ms"
 _DRIVER_OF_TRANSACTION = "contextweb_driver"
+_COMBINED = "contextweb_combined"
 _DEADLINE_TOKEN = "contextweb_deadline"
 _DEADLINE_OPTION = "contextweb_deadline_seconds"
 _DEADLINE_NAME_OPTION = "contextweb_deadline_name"
@@ -278,27 +279,54 @@ class DriverStatements:
             session.info[_DRIVER_OF_TRANSACTION] = (session.get_transaction(), self._connection, driver)
         self.dialect = self._connection.dialect
         self._qmark = self.dialect.paramstyle == "qmark"
+        self._session = session
 
     def execute(self, statement: str, parameters: Sequence[Any]) -> None:
+        """Run a statement that answers no rows (inside :func:`combined`, queue it)."""
+        queued = self._session.info.get(_COMBINED)
+        if queued is not None:
+            queued.append((statement, parameters))
+            return
         self._run(statement, parameters, many=False)
 
     def executemany(self, statement: str, rows: Sequence[Sequence[Any]]) -> None:
         if rows:
+            self.send_combined()
             self._run(statement, rows, many=True)
 
     def fetchone(self, statement: str, parameters: Sequence[Any]) -> tuple[Any, ...] | None:
         """The first row a query answers (values as the driver gives them), or None."""
+        self.send_combined()
         return self._run(statement, parameters, many=False, fetch=True)
 
     def fetchall(self, statement: str, parameters: Sequence[Any]) -> list[tuple[Any, ...]]:
         """Every row a query answers, as the driver's plain tuples (what numpy converts fast)."""
+        self.send_combined()
         return self._run(statement, parameters, many=False, fetch_all=True)
 
     def submit(self, statement: str, parameters: Sequence[Any]) -> QueuedRows:
         """A query whose rows are read later (:meth:`QueuedRows.all`). Inside :func:`pipelined` it
         goes to PostgreSQL with the block's other statements, and its rows are read after the block
         (reading them inside would cost a round trip of its own); elsewhere it runs at once."""
+        self.send_combined()
         return QueuedRows(self._cursor(statement, parameters, many=False))
+
+    def send_combined(self) -> None:
+        """Send the statements :func:`combined` queued so far, as one statement (the ones after it
+        must come after them)."""
+        queued = self._session.info.get(_COMBINED)
+        if not queued:
+            return
+        statements = list(queued)
+        queued.clear()
+        *first, (last, last_parameters) = statements
+        if not first:
+            self._run(last, last_parameters, many=False)
+            return
+        # Data-modifying common table expressions all run, whether the main statement reads them or not.
+        parts = ", ".join(f"s{i} AS ({statement})" for i, (statement, _) in enumerate(first))
+        parameters = [value for _, values in statements for value in values]
+        self._run(f"WITH {parts} {last}", parameters, many=False)
 
     def bind(self, column: Any) -> Callable[[Any], Any]:
         """SQLAlchemy's conversion of a value for ``column`` (a Column) on this dialect."""
@@ -379,6 +407,30 @@ def _identity(value: Any) -> Any:
 
 
 _BIND_PROCESSORS: dict[tuple[str, str, int], Callable[[Any], Any]] = {}
+
+
+@contextmanager
+def combined(session: Session) -> Iterator[None]:
+    """PostgreSQL: the block's :meth:`DriverStatements.execute` calls (statements that answer no
+    rows) go to the database as one statement when the block ends, the first ones as
+    data-modifying common table expressions of the last (``WITH s0 AS (…), s1 AS (…) last``).
+    psycopg's Python work per statement (its cursor, the parameters' conversion, the pipeline's
+    bookkeeping) was the largest part of a scene's save on the server (docs/benchmarks.md).
+
+    PostgreSQL runs the parts on one snapshot, and none sees another's rows, so a block may only
+    hold statements on different rows that need nothing from each other (a scene's rows); any other
+    :class:`DriverStatements` call in the block (a query, ``executemany``) first sends what is
+    queued, so the order of the statements never changes. An error in one part fails the statement,
+    as it would have failed the transaction. SQLite: no effect (its statements cost no round trip)."""
+    if session.get_bind().dialect.name != "postgresql" or _COMBINED in session.info:
+        yield
+        return
+    session.info[_COMBINED] = []
+    try:
+        yield
+        DriverStatements(session).send_combined()
+    finally:
+        del session.info[_COMBINED]
 
 
 @contextmanager

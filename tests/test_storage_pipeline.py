@@ -16,7 +16,14 @@ from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.errors import is_storage_failure
-from storage.database import DriverStatements, autocommit_reads, create_database_engine, pipelined, snapshot
+from storage.database import (
+    DriverStatements,
+    autocommit_reads,
+    combined,
+    create_database_engine,
+    pipelined,
+    snapshot,
+)
 from storage.repositories import contexts as context_repository
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import models as model_repository
@@ -210,6 +217,42 @@ def test_a_autocommit_reads_is_one_round_trip_and_its_connection_returns_as_it_w
         assert len([message for message in sent if "BEGIN" in message or "ROLLBACK" in message]) == transaction_control
     with sessions() as session:
         assert session.connection().connection.driver_connection.autocommit is False
+
+
+@pytest.mark.postgres
+def test_combined_statements_are_sent_as_one_in_their_order(postgres: Engine, tmp_path: Path) -> None:
+    trace = ProtocolTrace(postgres, tmp_path)
+    sessions = sessionmaker(bind=postgres)
+    with unit_of_work(sessions) as session, pipelined(session, commit=True):
+        with combined(session):
+            _insert(session, 1, 2)
+            DriverStatements(session).execute("UPDATE pipeline_probe SET id = id + 10 WHERE id = ?", (1,))
+            # Nothing was sent yet: the block's statements wait for its end …
+            assert not [message for message in trace.sent() if "pipeline_probe" in message]
+        sent = trace.sent()
+    # … and went as one statement, whose parts all ran on the snapshot from before it: the UPDATE
+    # did not see the row its own statement inserted.
+    statements = [message for message in sent if message.startswith("Parse") and "pipeline_probe" in message]
+    assert len(statements) == 1 and statements[0].count("INSERT INTO pipeline_probe") == 2, statements
+    assert _stored(postgres) == [1, 2]
+
+    # A query in the block sends what was queued first, so it sees it, and the order holds.
+    with unit_of_work(sessions) as session, combined(session):
+        _insert(session, 3)
+        assert DriverStatements(session).fetchall("SELECT id FROM pipeline_probe ORDER BY id", ()) == [(1,), (2,), (3,)]
+        DriverStatements(session).execute("DELETE FROM pipeline_probe WHERE id = ?", (3,))
+        _insert(session, 4)
+    assert _stored(postgres) == [1, 2, 4]
+
+    # One failing part fails the statement: none of the block's rows is stored.
+    with (
+        pytest.raises(IntegrityError, match="pipeline_probe_pkey"),
+        unit_of_work(sessions) as session,
+        pipelined(session, commit=True),
+        combined(session),
+    ):
+        _insert(session, 5, 6, 1)
+    assert _stored(postgres) == [1, 2, 4]
 
 
 @pytest.mark.parametrize("backend", BACKENDS)

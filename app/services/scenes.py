@@ -61,7 +61,7 @@ from app.services.perception import (
 from core.context.incremental import SceneUpdate
 from core.errors import InvalidInputError
 from core.scene import SceneObject as CoreObject
-from storage.database import pipelined
+from storage.database import combined, pipelined
 from storage.repositories import contexts as context_repository
 from storage.repositories import feed as feed_repository
 from storage.repositories import incremental_lda as lda_repository
@@ -329,12 +329,25 @@ def _save(
     request_hash: bytes | None,
 ) -> None:
     first_word = len(model.word_kinds) - len(update.vocabulary_additions)
-    # PostgreSQL: the scene's statements in one round trip, with its notification and the commit.
+    # PostgreSQL: the scene's statements in one round trip, with its notification and the commit;
+    # its rows and the notification as one statement (they touch different rows: ``combined``).
     with pipelined(session, commit=True):
-        _save_rows(
-            session, model, update, first_token, first_word, version, answer, answer_json, idempotency_key, request_hash
-        )
-        feed_repository.notify_change(session, model.id)
+        with combined(session):
+            _save_rows(
+                session,
+                model,
+                update,
+                first_token,
+                first_word,
+                version,
+                answer,
+                answer_json,
+                idempotency_key,
+                request_hash,
+            )
+            feed_repository.notify_change(session, model.id)
+        if (update.scene_index + 1) % model.checkpoint_interval == 0:
+            lda_repository.save_checkpoint(session, model.id, _checkpoint(model, version), compact=True)
 
 
 def _save_rows(
@@ -369,8 +382,6 @@ def _save_rows(
             version=version,
         ),
     )
-    if (update.scene_index + 1) % model.checkpoint_interval == 0:
-        lda_repository.save_checkpoint(session, model.id, _checkpoint(model, version), compact=True)
     scene_repository.add_scene(
         session,
         model.id,

@@ -420,8 +420,10 @@ def combined(session: Session) -> Iterator[None]:
     PostgreSQL runs the parts on one snapshot, and none sees another's rows, so a block may only
     hold statements on different rows that need nothing from each other (a scene's rows); any other
     :class:`DriverStatements` call in the block (a query, ``executemany``) first sends what is
-    queued, so the order of the statements never changes. An error in one part fails the statement,
-    as it would have failed the transaction. SQLite: no effect (its statements cost no round trip)."""
+    queued, so their order never changes. Statements run through the session itself (SQLAlchemy's
+    ``session.execute``, the ORM's flush) are not held back: they go before the queued ones. An
+    error in one part fails the statement, as it would have failed the transaction. SQLite: no
+    effect (its statements cost no round trip)."""
     if session.get_bind().dialect.name != "postgresql" or _COMBINED in session.info:
         yield
         return

@@ -20,6 +20,7 @@ The database is the truth, and memory follows it (docs/scaling.md):
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -47,6 +48,7 @@ from core.prototypes.prototypes import PrototypeSet
 from core.vocabulary import Vocabulary
 from storage.database import autocommit_reads, snapshot, with_deadline, write_turn
 from storage.models import HYPERPARAMETERS_VERSION, Model, TrainingObject
+from storage.repositories import contexts as context_repository
 from storage.repositories import feed as feed_repository
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import models as model_repository
@@ -119,6 +121,9 @@ class ModelWrite:
     """Set when the write changed nothing (an idempotent replay): no new version, no notification."""
     notified: bool = False
     """Set by a service whose own statements sent the change notification (a scene, in its pipeline)."""
+    keeps_labels: bool = False
+    """Set by a service whose write cannot change the contexts' labels (a learned scene): the labels
+    known at the write's start stay true at its version (:meth:`ModelWriter.transaction`)."""
 
 
 class ModelWriter:
@@ -175,6 +180,12 @@ class ModelWriter:
         self._on_commit: list[Callable[[], None]] = []
         """What waits for the commit of the open write."""
         self._writing = False
+        self._known_labels: tuple[int, dict[int, str]] | None = None
+        """The contexts' labels as stored at a database version (the version, the labels): what a
+        write under the lock at that version reads without asking (:meth:`transaction`)."""
+        self._labels_with_lock = True
+        """Whether the next write reads the labels with the lock: none are known, or the last write
+        found the known ones stale (another process wrote in between: two processes writing in turn)."""
         self.publish_summary()
 
     # The unit of work.
@@ -211,7 +222,9 @@ class ModelWriter:
         holding = False
         try:
             with write_turn(write_sessions), unit_of_work(write_sessions) as session:
-                locked = lda_repository.lock_model(session, self.id, wait=wait, idempotency_key=idempotency_key)
+                locked = lda_repository.lock_model(
+                    session, self.id, wait=wait, idempotency_key=idempotency_key, labels=self._labels_with_lock
+                )
                 self.lock.acquire()
                 holding = True
                 if self.deleted:
@@ -223,6 +236,7 @@ class ModelWriter:
                     raise ModelNotFound(self.id)
                 if locked.version != self.version:
                     self._catch_up_for_write(session, registry)
+                locked = self._with_labels(session, locked)
                 write = ModelWrite(session, locked.version + 1, locked)
                 self._writing = True
                 yield write
@@ -233,6 +247,7 @@ class ModelWriter:
                         feed_repository.notify_change(session, self.id)
             self._committed(write)
         except BaseException as error:
+            self._known_labels, self._labels_with_lock = None, True
             if self._changed:
                 self.undo(error, registry)  # under the lock: memory changed only once it was held
             raise
@@ -242,9 +257,33 @@ class ModelWriter:
             if holding:
                 self.lock.release()
 
+    def _with_labels(self, session: Session, locked: lda_repository.LockedModel) -> lda_repository.LockedModel:
+        """``locked`` with the contexts' labels at its version: as read with the lock, else as known
+        at that version, else read now (a round trip: another process or another kind of write
+        changed the model since). Labels change only by a write, which bumps the version, so labels
+        known at the version the lock found are the stored ones."""
+        known = self._known_labels
+        known_now = known is not None and known[0] == locked.version
+        if locked.labels is None:
+            labels = (
+                known[1] if known is not None and known_now else context_repository.context_labels(session, self.id)
+            )
+            locked = dataclasses.replace(locked, labels=labels)
+        self._labels_with_lock = known is not None and not known_now
+        assert locked.labels is not None
+        self._known_labels = (locked.version, locked.labels)
+        return locked
+
     def _committed(self, write: ModelWrite) -> None:
         if not write.unchanged:
             self.version = write.version
+            # A write that may have changed the labels leaves them unknown at its version (the next
+            # write reads them with the lock).
+            labels = write.locked.labels
+            if write.keeps_labels and labels is not None:
+                self._known_labels = (write.version, labels)
+            else:
+                self._known_labels, self._labels_with_lock = None, True
         for change in self._on_commit:
             change()
 
@@ -332,6 +371,7 @@ class ModelWriter:
         self.word_kinds = fresh.word_kinds
         self.training_object_count = fresh.training_object_count
         self.version = fresh.version
+        self._known_labels, self._labels_with_lock = None, True
         self.unavailable = None
         self.failed_version = None
         self.failed_checks = 0

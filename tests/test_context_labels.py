@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import partial
+from pathlib import Path
 
 import numpy as np
+import pytest
 from fastapi.testclient import TestClient
 
 from app.main import create_app
+from app.state import AppState
 from tests.conftest import CONTEXT_CONCEPTS, FAST_HYPERPARAMETERS, make_settings, two_processes
 from tests.faults import at_once
+from tests.protocol_trace import ProtocolTrace
 
 
 def _room_scene(room: str, rng: np.random.Generator) -> dict:
@@ -137,3 +142,64 @@ def test_a_label_written_while_another_process_deletes_the_model_is_a_200_or_a_4
             if label.status_code not in (200, 404) or deleted.status_code != 204:
                 unexpected.append((label.status_code, label.text[:200], deleted.status_code, deleted.text[:200]))
         assert unexpected == []
+
+
+def _post(client: TestClient, model_id: str, scene: dict) -> dict:
+    answer = client.post(f"/v1/models/{model_id}/scenes", json=scene)
+    assert answer.status_code == 201, answer.text
+    return answer.json()
+
+
+def _name_every_context(client: TestClient, model_id: str, name: str | None) -> dict[int, str | None]:
+    count = client.get(f"/v1/models/{model_id}/contexts").json()["context_count"]
+    for context in range(count):
+        label = None if name is None else f"{name}-{context}"
+        assert client.patch(f"/v1/models/{model_id}/contexts/{context}", json={"label": label}).status_code == 200
+    return _labels(client, model_id)
+
+
+def test_a_scene_names_the_labels_set_since_its_process_last_wrote(database_url: str) -> None:
+    # A process knows its model's labels at the version of its last scene and then takes the lock
+    # without reading them; a label written anywhere (here, or on another process) bumps the version,
+    # so the next scene on either process names the label as stored.
+    rng = np.random.default_rng(5)
+    scenes = [_room_scene(room, rng) for room in ("kitchen", "playroom", "kitchen", "workshop")]
+    with two_processes(database_url) as (first, second):
+        model_id = first.post("/v1/models", json={"name": "t", "hyperparameters": FAST_HYPERPARAMETERS}).json()["id"]
+        for scene in scenes:
+            assert _post(first, model_id, scene)["map_context_label"] is None
+        for writer, poster, name in (
+            (second, first, "kitchen"),  # set elsewhere, then a scene here
+            (second, second, "galley"),  # set and posted on the same process
+            (first, second, "pantry"),  # the other way round
+            (first, first, None),  # removed
+        ):
+            labels = _name_every_context(writer, model_id, name)
+            for scene in scenes:
+                answer = _post(poster, model_id, scene)
+                assert answer["map_context_label"] == labels.get(answer["map_context"])  # a context born since: none
+            other = first if poster is second else second
+            answer = _post(other, model_id, scenes[0])  # a scene on the other process changes no label
+            assert answer["map_context_label"] == labels.get(answer["map_context"])  # a context born since: none
+
+
+@pytest.mark.postgres
+def test_a_process_that_knows_the_labels_takes_the_lock_without_reading_them(postgres_url: str, tmp_path: Path) -> None:
+    rng = np.random.default_rng(6)
+    scene = _room_scene("kitchen", rng)
+    with TestClient(create_app(make_settings(postgres_url))) as client:
+        model_id = client.post("/v1/models", json={"name": "t", "hyperparameters": FAST_HYPERPARAMETERS}).json()["id"]
+        state: AppState = client.app_state["contextweb"]
+        trace = ProtocolTrace(state.engine, tmp_path)
+
+        def label_reads(post: Callable[[], object]) -> int:
+            start = len(trace.sent())
+            post()
+            return sum("FROM context_label" in message for message in trace.sent()[start:])
+
+        assert label_reads(lambda: _post(client, model_id, scene)) == 1  # a new model: not known yet
+        assert label_reads(lambda: _post(client, model_id, scene)) == 0
+        assert label_reads(lambda: _post(client, model_id, scene)) == 0
+        _name_every_context(client, model_id, "kitchen")
+        assert label_reads(lambda: _post(client, model_id, scene)) == 1  # a label write leaves them unknown
+        assert label_reads(lambda: _post(client, model_id, scene)) == 0

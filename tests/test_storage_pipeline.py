@@ -7,11 +7,10 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 from psycopg import pq
-from sqlalchemy import Engine, event, text
+from sqlalchemy import Engine, text
 from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -30,6 +29,7 @@ from storage.repositories import models as model_repository
 from storage.repositories import scenes as scene_repository
 from storage.unit_of_work import unit_of_work
 from tests.conftest import BACKENDS, migrated_database
+from tests.protocol_trace import ProtocolTrace
 
 
 @pytest.fixture
@@ -110,29 +110,6 @@ def test_a_pipeline_that_commits_stores_all_of_its_statements_or_none(postgres: 
     with unit_of_work(sessions) as session:
         _insert(session, 6)
     assert _stored(postgres) == [1, 2, 3, 6]
-
-
-class ProtocolTrace:
-    """libpq's trace of every message on the connections ``engine`` checks out (psycopg's
-    ``PGconn.trace``): what was sent, not what a mock says was sent."""
-
-    def __init__(self, engine: Engine, folder: Path) -> None:
-        self._file = (folder / "libpq-trace.txt").open("w+")
-        event.listen(engine, "checkout", self._trace)
-
-    def _trace(self, dbapi_connection: Any, _record: Any, _proxy: Any) -> None:
-        dbapi_connection.pgconn.trace(self._file.fileno())
-        dbapi_connection.pgconn.set_trace_flags(pq.Trace.SUPPRESS_TIMESTAMPS | pq.Trace.REGRESS_MODE)
-
-    def sent(self) -> list[str]:
-        """The messages the client sent, as "Sync", 'Parse "" "BEGIN"' and so on."""
-        self._file.flush()
-        self._file.seek(0)
-        return [
-            " ".join(part.strip() for part in line.split("\t")[2:])
-            for line in self._file.read().splitlines()
-            if line.startswith("F\t")
-        ]
 
 
 def _syncs_before_commit(messages: list[str]) -> int:

@@ -96,7 +96,7 @@ def _write_scene(
         answer, replayed = scene_service.learn_scene(
             write.session, model, write.version, prepared, idempotency_key, write.locked, state.metrics
         )
-        write.version_saved = write.notified = not replayed
+        write.version_saved = write.notified = write.keeps_labels = not replayed
         write.unchanged = replayed
     return answer, replayed
 

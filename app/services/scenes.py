@@ -198,6 +198,7 @@ def learn_scene(
     started = time.perf_counter()
     update = model.writer.learn_scene(words, partial(_kind, model, body))  # memory holds it until the commit
     update_seconds = time.perf_counter() - started
+    assert locked.labels is not None  # ModelWriter.transaction gives every write the labels at its version
     answer = _answer(model, update, analysis, datetime.now(UTC), locked.labels)
     answer_json = answer.model_dump_json()
     _save(session, model, update, first_token, version, answer, answer_json, idempotency_key, request_hash)

@@ -527,8 +527,9 @@ class LockedModel:
 
     version: int
     """Its stored version."""
-    labels: dict[int, str]
-    """Its contexts' labels (context index → label), which a learned scene's answer names."""
+    labels: dict[int, str] | None
+    """Its contexts' labels (context index → label), which a learned scene's answer names; None
+    when the lock was taken without them (``lock_model(labels=False)``)."""
     idempotency_key: str | None = None
     """The key looked up with the lock (the key of the scene this write learns), if any."""
     stored_under_key: StoredAnswer | None = None
@@ -536,7 +537,12 @@ class LockedModel:
 
 
 def lock_model(
-    session: Session, model_id: str, *, wait: bool = True, idempotency_key: str | None = None
+    session: Session,
+    model_id: str,
+    *,
+    wait: bool = True,
+    idempotency_key: str | None = None,
+    labels: bool = True,
 ) -> LockedModel | None:
     """The model locked for this transaction's writes, with its stored version and its contexts'
     labels (None: no such model), and with ``idempotency_key`` the scene stored under that key.
@@ -548,14 +554,16 @@ def lock_model(
 
     ``wait=False``: on PostgreSQL, raises :class:`LockHeldElsewhere` at once (``NOWAIT``; the
     transaction is then aborted) instead of waiting for a lock that another transaction holds;
-    on SQLite, the same as ``wait=True``."""
+    on SQLite, the same as ``wait=True``. ``labels=False``: the labels are not read (the caller
+    knows them as of the version it will find: app/registry.py ``ModelWriter.transaction``)."""
     queued: list[QueuedRows] = []
     try:
         with pipelined(session, begin=True):
             driver = DriverStatements(session)
             lock = "" if driver.dialect.name != "postgresql" else " FOR UPDATE" if wait else " FOR UPDATE NOWAIT"
             queued.append(driver.submit(_SELECT_VERSION + lock, (model_id,)))
-            queued.append(submit_context_labels(driver, model_id))
+            if labels:
+                queued.append(submit_context_labels(driver, model_id))
             if idempotency_key is not None:
                 queued.append(submit_find_by_idempotency_key(driver, model_id, idempotency_key))
     except DBAPIError as error:
@@ -564,11 +572,14 @@ def lock_model(
         if not wait and getattr(error.orig, "sqlstate", None) == LOCK_NOT_AVAILABLE:
             raise LockHeldElsewhere(model_id) from error
         raise
-    version, labels, *keyed = (rows.all() for rows in queued)
+    version, *rest = (rows.all() for rows in queued)
+    label_rows = rest.pop(0) if labels else None
     if not version:
         return None
-    stored_under_key = stored_answer(keyed[0]) if keyed else None
-    return LockedModel(int(version[0][0]), dict(labels), idempotency_key, stored_under_key)
+    stored_under_key = stored_answer(rest[0]) if rest else None
+    return LockedModel(
+        int(version[0][0]), None if label_rows is None else dict(label_rows), idempotency_key, stored_under_key
+    )
 
 
 def stored_version(session: Session, model_id: str) -> int | None:

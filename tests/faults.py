@@ -26,6 +26,7 @@ after any fault.
 from __future__ import annotations
 
 import errno
+import itertools
 import os
 import select
 import shutil
@@ -797,27 +798,78 @@ class KeyedClient:
 
     def _check_503(self, key: str, response: httpx.Response) -> float | None:
         """The 503's Retry-After in seconds; a problem recorded when the 503 is not the contract's."""
-        retry_after = response.headers.get("retry-after")
-        if retry_after is None:
-            self.problems.append(f"{key}: 503 without Retry-After: {response.text[:200]}")
-        try:
-            body = response.json()
-        except ValueError:
-            self.problems.append(f"{key}: 503 without a JSON body: {response.text[:200]!r}")
-            body = {}
-        if not (
-            isinstance(body, dict)
-            and body.get("error") in RETRYABLE_ERRORS
-            and isinstance(body.get("detail"), str)
-            and "field" in body
-            and body["field"] is None
-        ):
-            self.problems.append(f"{key}: 503 body is not one of {sorted(RETRYABLE_ERRORS)}: {response.text[:200]}")
-        try:
-            return float(retry_after) if retry_after is not None else None
-        except ValueError:
-            self.problems.append(f"{key}: Retry-After is not a number of seconds: {retry_after!r}")
-            return None
+        return check_503(key, response, self.problems)
+
+
+def check_503(what: str, response: httpx.Response, problems: list[str]) -> float | None:
+    """A 503's Retry-After in seconds; a problem added to ``problems`` when the 503 is not the
+    contract's (the JSON error of a retryable storage or model failure, with Retry-After)."""
+    retry_after = response.headers.get("retry-after")
+    if retry_after is None:
+        problems.append(f"{what}: 503 without Retry-After: {response.text[:200]}")
+    try:
+        body = response.json()
+    except ValueError:
+        problems.append(f"{what}: 503 without a JSON body: {response.text[:200]!r}")
+        body = {}
+    if not (
+        isinstance(body, dict)
+        and body.get("error") in RETRYABLE_ERRORS
+        and isinstance(body.get("detail"), str)
+        and "field" in body
+        and body["field"] is None
+    ):
+        problems.append(f"{what}: 503 body is not one of {sorted(RETRYABLE_ERRORS)}: {response.text[:200]}")
+    try:
+        return float(retry_after) if retry_after is not None else None
+    except ValueError:
+        problems.append(f"{what}: Retry-After is not a number of seconds: {retry_after!r}")
+        return None
+
+
+@dataclass
+class Reader:
+    """An operator's dashboard: reads a model over and over (the model, its contexts, a page of its
+    scenes) until stopped, on one keep-alive connection. Every answer must be a 200 or the
+    contract's 503 (:func:`check_503`); anything else, a transport error included, is a problem."""
+
+    base_url: str
+    model_id: str
+    statuses: list[int | str] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+    _thread: threading.Thread | None = None
+    _stop: threading.Event = field(default_factory=threading.Event)
+
+    def start(self) -> Reader:
+        self._thread = threading.Thread(target=self._run, name="reader", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self, join_seconds: float) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(join_seconds)
+            if self._thread.is_alive():
+                self.problems.append(f"the reader still ran {join_seconds:.0f} s after it was stopped")
+
+    def _run(self) -> None:
+        paths = [f"/v1/models/{self.model_id}{suffix}" for suffix in ("", "/contexts", "/scenes?limit=5")]
+        with httpx.Client(base_url=self.base_url, timeout=20.0) as client:
+            for path in itertools.cycle(paths):
+                if self._stop.is_set():
+                    return
+                try:
+                    response = client.get(path)
+                except httpx.TransportError as error:
+                    self.statuses.append(f"transport:{type(error).__name__}")
+                    self.problems.append(f"GET {path}: {type(error).__name__}: {error}")
+                    continue
+                self.statuses.append(response.status_code)
+                if response.status_code == 503:
+                    check_503(f"GET {path}", response, self.problems)
+                    time.sleep(0.05)
+                elif response.status_code != 200:
+                    self.problems.append(f"GET {path}: status {response.status_code}: {response.text[:300]}")
 
 
 def _local_port(response: httpx.Response) -> int | None:

@@ -9,6 +9,8 @@ itself, shared with other tests, keeps running). What must hold (issue 13):
 
 - every attempt is a 201 or a 503 ``storage_unavailable``/``model_unavailable``
   JSON error with ``Retry-After``, on a keep-alive connection that stays usable;
+- a dashboard reading the model all the while (the model, its contexts, its scenes)
+  gets a 200 or that 503, never another status or a dropped connection;
 - ``/readyz`` is a 503 with the reason while the database is away, 200 after;
 - every acknowledged answer is stored as sent, scene and token ids have no
   gaps, n_kw equals the stored assignments, a committed key replays;
@@ -26,6 +28,7 @@ import pytest
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
 from tests.faults import (
     KeyedClient,
+    Reader,
     assert_nothing_lost_then_restart,
     create_model,
     database_name,
@@ -58,6 +61,7 @@ def test_postgres_outages_under_load_lose_nothing(tmp_path: Path) -> None:
         ]
         for client in clients:
             client.start()
+        reader = Reader(server.base_url, model_id).start()
         readiness: list[str] = []
         try:
             time.sleep(BETWEEN_OUTAGES_SECONDS)
@@ -78,6 +82,12 @@ def test_postgres_outages_under_load_lose_nothing(tmp_path: Path) -> None:
                     readiness.append(f"after outage {outage}: /readyz still {status} {body[:200]}")
                 time.sleep(BETWEEN_OUTAGES_SECONDS)
         finally:
+            reader.stop(join_seconds=30)
             stop_clients(clients, join_seconds=30)
 
+        # Reads during the outages: each a 200 or the contract's 503, and some were 503s.
+        reads = {status: reader.statuses.count(status) for status in set(reader.statuses)}
+        print(f"reads: {reads}")
+        assert not reader.problems, f"reads {reads}; problems:\n" + "\n".join(reader.problems[:20])
+        assert reads.get(503, 0) > 0 and reads.get(200, 0) > 0, f"the reads never met the outage: {reads}"
         assert_nothing_lost_then_restart(url, server, model_id, clients, readiness, tmp_path)

@@ -16,7 +16,7 @@ def context_labels(session: Session, model_id: str) -> dict[int, str]:
 
 def submit_context_labels(driver: DriverStatements, model_id: str) -> QueuedRows:
     """:func:`context_labels`' query, its rows read later (``DriverStatements.submit``): a write
-    reads the labels in the round trip that locks the model (``lock_model``)."""
+    that does not know the labels reads them in the round trip that locks the model (``lock_model``)."""
     return driver.submit(_SELECT_LABELS, (model_id,))
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 from decimal import Decimal
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -14,6 +15,7 @@ from sqlalchemy import Engine, text
 
 from app.deps import model_write
 from app.errors import IdempotencyKeyReused
+from app.main import create_app
 from app.registry import ModelRuntime
 from app.schemas.scenes import ANSWER_DECIMALS, SceneCreate, SceneRead
 from app.services.perception import (
@@ -30,7 +32,14 @@ from core.concept_web import ConceptWeb, WebInference
 from sim.world import World
 from storage.database import create_session_makers
 from storage.repositories import incremental_lda as lda_repository
-from tests.conftest import CONTEXT_CONCEPTS, FAST_HYPERPARAMETERS, concept_scenes, synthetic_training_objects
+from tests.conftest import (
+    CONTEXT_CONCEPTS,
+    FAST_HYPERPARAMETERS,
+    concept_scenes,
+    make_settings,
+    synthetic_training_objects,
+)
+from tests.protocol_trace import ProtocolTrace
 
 KITCHEN = {"objects": [{"concepts": ["cup", "hard", "short"]}, {"concepts": ["plate", "round"]}]}
 PLAYROOM = {"objects": [{"concepts": ["ball", "soft", "noisy"]}, {"concepts": {"box": 0.9, "edgy": 0.8}}]}
@@ -285,3 +294,26 @@ def test_a_keyed_scene_in_a_write_opened_without_its_key_looks_the_key_up_itself
     with pytest.raises(IdempotencyKeyReused):
         learn(other_body, "key-1")
     assert model.incremental_lda.n_scenes == 1
+
+
+@pytest.mark.postgres
+def test_a_learned_scene_is_two_round_trips_to_postgresql(postgres_url: str, tmp_path: Path) -> None:
+    # docs/scaling.md: the BEGIN, the lock (and, once known, no labels) in one pipeline; the scene's
+    # rows, notification and COMMIT in another. Read off libpq's trace of the server's connections.
+    with TestClient(create_app(make_settings(postgres_url))) as client:
+        model_id = client.post("/v1/models", json={"name": "t", "hyperparameters": FAST_HYPERPARAMETERS}).json()["id"]
+        state: AppState = client.app_state["contextweb"]
+        trace = ProtocolTrace(state.engine, tmp_path)
+        scenes = concept_scenes(10, seed=21)
+        for scene in scenes[:7]:  # psycopg prepares a statement on its fifth run
+            assert client.post(f"/v1/models/{model_id}/scenes", json=scene).status_code == 201
+        for scene in scenes[7:]:
+            start = len(trace.sent())
+            assert client.post(f"/v1/models/{model_id}/scenes", json=scene).status_code == 201
+            sent = trace.sent()[start:]
+            # Each Sync, and each simple query (psycopg's own BEGIN or ROLLBACK), is a round trip.
+            assert sent.count("Sync") == 2, sent
+            assert not [message for message in sent if message.startswith("Query")], sent
+            # Four statements: BEGIN, the lock, the scene's combined statement, COMMIT; no labels'
+            # query (a prepared statement is bound by name, so its text is not in the trace).
+            assert [message.split()[0] for message in sent].count("Bind") == 4, sent

@@ -222,6 +222,7 @@ class ModelWriter:
         holding = False
         try:
             with write_turn(write_sessions), unit_of_work(write_sessions) as session:
+                # Read before this process's lock: only a hint of whether to read the labels with the lock.
                 locked = lda_repository.lock_model(
                     session, self.id, wait=wait, idempotency_key=idempotency_key, labels=self._labels_with_lock
                 )
@@ -263,16 +264,13 @@ class ModelWriter:
         changed the model since). Labels change only by a write, which bumps the version, so labels
         known at the version the lock found are the stored ones."""
         known = self._known_labels
-        known_now = known is not None and known[0] == locked.version
-        if locked.labels is None:
-            labels = (
-                known[1] if known is not None and known_now else context_repository.context_labels(session, self.id)
-            )
-            locked = dataclasses.replace(locked, labels=labels)
-        self._labels_with_lock = known is not None and not known_now
-        assert locked.labels is not None
-        self._known_labels = (locked.version, locked.labels)
-        return locked
+        known_now = known[1] if known is not None and known[0] == locked.version else None
+        labels = locked.labels
+        if labels is None:
+            labels = known_now if known_now is not None else context_repository.context_labels(session, self.id)
+        self._labels_with_lock = known is not None and known_now is None
+        self._known_labels = (locked.version, labels)
+        return dataclasses.replace(locked, labels=labels)
 
     def _committed(self, write: ModelWrite) -> None:
         if not write.unchanged:

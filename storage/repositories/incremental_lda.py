@@ -556,29 +556,30 @@ def lock_model(
     transaction is then aborted) instead of waiting for a lock that another transaction holds;
     on SQLite, the same as ``wait=True``. ``labels=False``: the labels are not read (the caller
     knows them as of the version it will find: app/registry.py ``ModelWriter.transaction``)."""
-    queued: list[QueuedRows] = []
+    queued: dict[str, QueuedRows] = {}
     try:
         with pipelined(session, begin=True):
             driver = DriverStatements(session)
             lock = "" if driver.dialect.name != "postgresql" else " FOR UPDATE" if wait else " FOR UPDATE NOWAIT"
-            queued.append(driver.submit(_SELECT_VERSION + lock, (model_id,)))
+            queued["version"] = driver.submit(_SELECT_VERSION + lock, (model_id,))
             if labels:
-                queued.append(submit_context_labels(driver, model_id))
+                queued["labels"] = submit_context_labels(driver, model_id)
             if idempotency_key is not None:
-                queued.append(submit_find_by_idempotency_key(driver, model_id, idempotency_key))
+                queued["keyed"] = submit_find_by_idempotency_key(driver, model_id, idempotency_key)
     except DBAPIError as error:
-        for rows in queued:
+        for rows in queued.values():
             rows.close()
         if not wait and getattr(error.orig, "sqlstate", None) == LOCK_NOT_AVAILABLE:
             raise LockHeldElsewhere(model_id) from error
         raise
-    version, *rest = (rows.all() for rows in queued)
-    label_rows = rest.pop(0) if labels else None
-    if not version:
+    read = {name: rows.all() for name, rows in queued.items()}  # every cursor read, and so closed
+    if not read["version"]:
         return None
-    stored_under_key = stored_answer(rest[0]) if rest else None
     return LockedModel(
-        int(version[0][0]), None if label_rows is None else dict(label_rows), idempotency_key, stored_under_key
+        int(read["version"][0][0]),
+        dict(read["labels"]) if "labels" in read else None,
+        idempotency_key,
+        stored_answer(read["keyed"]) if "keyed" in read else None,
     )
 
 

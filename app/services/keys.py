@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-from contextlib import nullcontext
-
-from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from app.auth import generate_key
 from app.errors import InvalidInput, KeyAlreadyCreated, KeyNotFound
 from app.schemas.keys import ApiKeyCreate, ApiKeyCreated, ApiKeyRead
-from app.services.idempotency import check_retry, request_digest
+from app.services.idempotency import check_retry, create_once, request_digest
 from storage.models import ApiKey, utc_now
 from storage.repositories import api_keys as api_key_repository
 
@@ -27,43 +24,37 @@ def create_key(session: Session, body: ApiKeyCreate, idempotency_key: str | None
     422 ``idempotency_key_reused``. Two creations racing on one key meet at its unique index.
     """
     request_hash = request_digest(idempotency_key, body)
-    if idempotency_key is not None:
-        _refuse_a_retry(session, idempotency_key, request_hash)
-    if body.models is not None:
-        if body.role == "admin":
-            raise InvalidInput("models", "an admin key is a key of every model: send models null")
-        existing = api_key_repository.existing_model_ids(session, body.models)
-        for index, model_id in enumerate(body.models):
-            if model_id not in existing:
-                raise InvalidInput(f"models[{index}]", f"no model {model_id!r}")
-    new = generate_key()
-    try:
-        # A savepoint only where a racing retry can meet the Idempotency-Key's unique index.
-        with session.begin_nested() if idempotency_key is not None else nullcontext():
-            row = api_key_repository.add_api_key(
-                session,
-                key_id=new.key_id,
-                name=body.name,
-                role=body.role,
-                model_ids=None if body.models is None else sorted(set(body.models)),
-                prefix=new.prefix,
-                secret_hash=new.secret_hash,
-                idempotency_key=idempotency_key,
-                request_hash=request_hash,
-            )
-    except IntegrityError:
-        if idempotency_key is not None:
-            _refuse_a_retry(session, idempotency_key, request_hash)
-        raise  # another constraint: not a race on the Idempotency-Key
-    return ApiKeyCreated(**key_read(row).model_dump(), key=new.key)
 
+    def create() -> ApiKeyCreated:
+        if body.models is not None:
+            if body.role == "admin":
+                raise InvalidInput("models", "an admin key is a key of every model: send models null")
+            existing = api_key_repository.existing_model_ids(session, body.models)
+            for index, model_id in enumerate(body.models):
+                if model_id not in existing:
+                    raise InvalidInput(f"models[{index}]", f"no model {model_id!r}")
+        new = generate_key()
+        row = api_key_repository.add_api_key(
+            session,
+            key_id=new.key_id,
+            name=body.name,
+            role=body.role,
+            model_ids=None if body.models is None else sorted(set(body.models)),
+            prefix=new.prefix,
+            secret_hash=new.secret_hash,
+            idempotency_key=idempotency_key,
+            request_hash=request_hash,
+        )
+        return ApiKeyCreated(**key_read(row).model_dump(), key=new.key)
 
-def _refuse_a_retry(session: Session, idempotency_key: str, request_hash: bytes | None) -> None:
-    """Raise if a key was already created under ``idempotency_key``: 422 for another body, else 409."""
-    stored = api_key_repository.find_by_idempotency_key(session, idempotency_key)
-    if stored is not None:
-        check_retry(idempotency_key, stored.request_hash, request_hash)
-        raise KeyAlreadyCreated(idempotency_key, stored.id)
+    def earlier(key: str) -> None:
+        """Raise if a key was already created under ``key``: 422 for another body, else 409."""
+        stored = api_key_repository.find_by_idempotency_key(session, key)
+        if stored is not None:
+            check_retry(key, stored.request_hash, request_hash)
+            raise KeyAlreadyCreated(key, stored.id)
+
+    return create_once(session, idempotency_key, create, earlier)
 
 
 def list_keys(session: Session) -> list[ApiKeyRead]:

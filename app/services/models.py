@@ -5,14 +5,13 @@ from __future__ import annotations
 import uuid
 from typing import NamedTuple
 
-from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput
 from app.registry import FittedPerception, ModelRegistry, ModelRuntime, ModelWriter, jsonable
 from app.schemas.models import Hyperparameters as HyperparametersSchema
 from app.schemas.models import ModelCreate, ModelRead, VocabularySchema
-from app.services.idempotency import check_retry, request_digest
+from app.services.idempotency import check_retry, create_once, request_digest
 from app.services.perception import Perception
 from app.stream import CLOSE_NORMAL, StreamHub
 from core.context import Hyperparameters, IncrementalLDA
@@ -41,27 +40,30 @@ def create_model(
     processes meet at the key's unique index: the later one's insert is undone (a savepoint) and
     it answers the earlier one's model."""
     request_hash = request_digest(idempotency_key, body)
-    if idempotency_key is not None:
-        stored = model_repository.find_by_idempotency_key(session, idempotency_key)
-        if stored is not None:
-            return _replayed(registry, idempotency_key, request_hash, stored)
+
+    def earlier(key: str) -> CreatedModel | None:
+        stored = model_repository.find_by_idempotency_key(session, key)
+        return None if stored is None else _replayed(registry, key, request_hash, stored)
+
+    return create_once(
+        session, idempotency_key, lambda: _create(session, registry, body, idempotency_key, request_hash), earlier
+    )
+
+
+def _create(
+    session: Session,
+    registry: ModelRegistry,
+    body: ModelCreate,
+    idempotency_key: str | None,
+    request_hash: bytes | None,
+) -> CreatedModel:
     vocabulary = _vocabulary(body.vocabulary)
     try:
         settings = Hyperparameters.from_dict(body.hyperparameters.model_dump())
     except InvalidInputError as error:
         raise InvalidInput(f"hyperparameters.{error.field}", error.problem) from None
     incremental_lda = IncrementalLDA(vocabulary.concepts, seed=body.seed, hyperparameters=settings)
-    if idempotency_key is None:
-        row = _add_model(session, body, vocabulary, settings, incremental_lda, None, None)
-    else:
-        try:
-            with session.begin_nested():
-                row = _add_model(session, body, vocabulary, settings, incremental_lda, idempotency_key, request_hash)
-        except IntegrityError:
-            stored = model_repository.find_by_idempotency_key(session, idempotency_key)
-            if stored is None:  # another constraint: not a race on the key
-                raise
-            return _replayed(registry, idempotency_key, request_hash, stored)
+    row = _add_model(session, body, vocabulary, settings, incremental_lda, idempotency_key, request_hash)
     writer = ModelWriter(row.id, FittedPerception(Perception(vocabulary)), incremental_lda, list(vocabulary.kinds), 0)
     model = ModelRuntime.from_row(row, writer)
     after_commit(session, lambda: registry.add(model))

@@ -138,8 +138,7 @@ def _start(settings: Settings) -> AppState:
         hub=hub,
         feed=SceneFeed(hub, engine, read_sessions),
     )
-    with read_sessions() as session:
-        state.registry.load_all(session)
+    state.registry.load_all()
     logger.info("%d model(s) loaded from %s", len(state.registry), engine.url.render_as_string())
     state.models_loaded = True
     return state

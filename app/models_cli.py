@@ -5,8 +5,9 @@ below it; it exits 0 when every model checked is sound, 1 when any has a problem
 and 2 for an unknown ID. ``repair`` rebuilds a model's counts from its scenes and
 token assignments (storage.repositories.consistency), prints what changed, checks
 the model again and exits 0 when it is sound afterwards. Both read the database
-of ``CONTEXTWEB_DATABASE_URL`` (the server's), which may be served meanwhile: a
-repair bumps the model's version, so serving processes reload it.
+of ``CONTEXTWEB_DATABASE_URL`` (the server's), which may be served meanwhile: each model is
+checked in one snapshot (``storage.database.snapshot``), so a scene committed during the check
+is not taken for damage, and a repair bumps the model's version, so serving processes reload it.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from contextlib import contextmanager
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.settings import Settings
-from storage.database import create_database_engine, create_session_makers
+from storage.database import create_database_engine, create_session_makers, snapshot
 from storage.repositories import consistency
 from storage.unit_of_work import unit_of_work
 
@@ -67,8 +68,9 @@ def _print_result(model_id: str, name: str, problems: list[consistency.Problem])
 
 def run_check(args: argparse.Namespace) -> int:
     """Check one model or all; 0 when all are sound, 1 when any has a problem, 2 for an unknown ID."""
-    with _session_makers() as (read, _write), read() as session:
-        models = consistency.stored_models(session)
+    with _session_makers() as (read, _write):
+        with snapshot(read) as session:
+            models = consistency.stored_models(session)
         if args.model_id is not None:
             models = [(model_id, name) for model_id, name in models if model_id == args.model_id]
             if not models:
@@ -76,7 +78,8 @@ def run_check(args: argparse.Namespace) -> int:
                 return UNKNOWN_MODEL
         exit_code = SOUND
         for model_id, name in models:
-            problems = consistency.find_problems(session, model_id)
+            with snapshot(read) as session:
+                problems = consistency.find_problems(session, model_id)
             _print_result(model_id, name, problems)
             if problems:
                 exit_code = PROBLEMS
@@ -108,7 +111,7 @@ def run_repair(args: argparse.Namespace) -> int:
                 print(f"  {change}")
         else:
             print(f"{model_id} {name}: nothing to repair")
-        with read() as session:
+        with snapshot(read) as session:
             problems = consistency.find_problems(session, model_id)
     _print_result(model_id, name, problems)
     return PROBLEMS if problems else SOUND

@@ -740,10 +740,22 @@ class ModelRegistry:
         writer.forget()
         self.remove(writer.id)
 
-    def load_all(self, session: Session) -> None:
-        """Every stored model; one whose state fails its load is registered unavailable, never fatal."""
-        for row in model_repository.list_models(session):
-            self.add(_loaded_or_unavailable(session, row))
+    def load_all(self) -> None:
+        """Every stored model, each read in one snapshot of its own (:meth:`_snapshot`, as every later
+        load reads one); one whose state fails its load is registered unavailable, never fatal.
+
+        One snapshot a model, not one session for all: on PostgreSQL a plain session reads each
+        statement as of its own start, so a process starting while another writes read a model's
+        state row before that write and its token batches after it, and took a sound model for a
+        damaged one ("846 stored, 848 after catching up": a ``--workers 2`` worker restarted under
+        load, 2026-12-07; tests/test_runtime_processes.py)."""
+        with self._snapshot() as session:
+            model_ids = [row.id for row in model_repository.list_models(session)]
+        for model_id in model_ids:
+            with self._snapshot() as session:
+                row = model_repository.get_model(session, model_id)
+                if row is not None:  # else deleted since the list
+                    self.add(_loaded_or_unavailable(session, row))
 
     # Keeping memory equal to the database.
 

@@ -465,19 +465,35 @@ def pipelined(session: Session, *, begin: bool = False, commit: bool = False) ->
     if driver is None or pipeline is None:
         yield
         return
+    driver_error = connection.dialect.loaded_dbapi.Error
+    failed: Exception | None = None
     try:
         with pipeline():
-            if explicit_begin:
-                with driver.cursor() as cursor:
-                    cursor.execute("BEGIN", prepare=False)
-            yield
-            if commit:
-                session.flush()
-                commit_sent(session)
-                with driver.cursor() as cursor:
-                    cursor.execute("COMMIT", prepare=False)
-    except connection.dialect.loaded_dbapi.Error as error:
-        raise _as_sqlalchemy_error(connection, "(pipeline)", (), error) from error
+            try:
+                if explicit_begin:
+                    with driver.cursor() as cursor:
+                        cursor.execute("BEGIN", prepare=False)
+                yield
+                if commit:
+                    session.flush()
+                    commit_sent(session)
+                    with driver.cursor() as cursor:
+                        cursor.execute("COMMIT", prepare=False)
+            except (driver_error, DBAPIError) as error:
+                # Kept, and the pipeline left as if the block had ended: leaving it with the error
+                # made psycopg log "error ignored terminating <Pipeline>: pipeline aborted" for the
+                # statements queued behind the failed one (a lock refused with NOWAIT, whose error
+                # reaches the block's next statement, every time two processes write one model),
+                # which says nothing this error does not.
+                failed = error
+    except driver_error as error:
+        if failed is None:
+            raise _as_sqlalchemy_error(connection, "(pipeline)", (), error) from error
+        # else ending the aborted pipeline failed too: the block's error is the cause
+    if isinstance(failed, DBAPIError):
+        raise failed
+    if failed is not None:
+        raise _as_sqlalchemy_error(connection, "(pipeline)", (), failed) from failed
 
 
 @contextmanager

@@ -16,6 +16,11 @@ its ``COMMIT`` had been sent. The server, once it runs again, reads the end of t
 back what it had not committed. A ``COMMIT`` that it had already received may still commit: the
 503 says so, and a keyed retry gets the stored answer.
 
+A deadline measures the database, not this process: when the process itself does not run for a
+while (stopped, its machine paused), the watchdog wakes late by as much, and every armed deadline
+moves by that stall (``_postpone``) instead of cutting, at once, writes whose answer may be waiting
+in their sockets.
+
 The socket is ``dup``-ed when the deadline is armed, so the watchdog cuts that connection's socket
 even if the connection is closed meanwhile and its descriptor number reused; the copy is closed
 when the transaction ends. Written here because no maintained library offers a deadline on a
@@ -30,9 +35,17 @@ import socket
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 logger = logging.getLogger("contextweb")
+
+
+#: While a deadline is armed the watchdog looks at least this often (seconds), so that it notices a
+#: stall of its process within a tick of its end.
+TICK_SECONDS = 0.25
+#: A wake-up later than this (seconds) is a stall of the process, not the scheduler's jitter (a thread
+#: waits for the GIL a switch interval, 5 ms, at a time), and is not counted against any deadline.
+STALL_SECONDS = 1.0
 
 
 @dataclass(frozen=True)
@@ -79,12 +92,31 @@ class SocketDeadlines:
         with self._condition:
             while True:
                 now = time.monotonic()
+                stalled = now - self._wakes_at
+                if stalled > STALL_SECONDS and self._armed:
+                    self._postpone(stalled)
                 for token in [token for token, armed in self._armed.items() if armed.deadline <= now]:
                     # Under the lock, so that a connection whose transaction has just ended (and which
                     # may be handed to the next one) is not cut: shutdown(2) does not block.
                     self._cut(self._armed.pop(token))
-                self._wakes_at = min((armed.deadline for armed in self._armed.values()), default=float("inf"))
+                next_deadline = min((armed.deadline for armed in self._armed.values()), default=float("inf"))
+                self._wakes_at = min(next_deadline, now + TICK_SECONDS) if self._armed else float("inf")
                 self._condition.wait(None if self._wakes_at == float("inf") else self._wakes_at - now)
+
+    def _postpone(self, stalled: float) -> None:
+        """The watchdog woke ``stalled`` seconds late: this process did not run (stopped, its machine
+        paused). Every armed deadline moves by that much, so that a deadline counts the time the
+        database had to answer while this process could hear it, not a stall of its own: cut at once,
+        a write the database had answered (or that this process had not even sent) came back 503
+        "the database did not answer within the write deadline" (a drill: a replica stopped for 15 s,
+        2026-12-07)."""
+        logger.warning(
+            "this process did not run for %.1f s (stopped, or its machine paused): %d database deadline(s) "
+            "moved by that much",
+            stalled,
+            len(self._armed),
+        )
+        self._armed = {token: replace(armed, deadline=armed.deadline + stalled) for token, armed in self._armed.items()}
 
     @staticmethod
     def _cut(armed: _Armed) -> None:

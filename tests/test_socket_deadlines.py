@@ -3,10 +3,15 @@
 
 from __future__ import annotations
 
+import json
 import os
+import signal
 import socket
+import subprocess
+import sys
 import threading
 import time
+from pathlib import Path
 
 from storage.deadlines import SocketDeadlines
 
@@ -70,3 +75,66 @@ def test_many_writes_arm_and_disarm_from_threads_without_a_cut() -> None:
         assert len(os.listdir("/proc/self/fd")) == descriptors  # each disarm closed its socket's copy
         peer.sendall(b"still open")
         assert ours.recv(16) == b"still open"
+
+
+_STALLED_CHILD = """
+import json, socket, time
+from storage.deadlines import SocketDeadlines
+
+deadlines = SocketDeadlines()
+ours, peer = socket.socketpair()
+deadlines.arm(ours.fileno(), {deadline}, lambda: None)
+print("armed", flush=True)
+before = time.monotonic()
+stall = 0.0
+while stall < 1.0:  # busy until it has been stopped: a gap between two looks at the clock
+    now = time.monotonic()
+    stall, before = max(stall, now - before), now
+resumed = time.monotonic()
+while time.monotonic() - resumed < 0.3:  # running again, well within the deadline's own time
+    pass
+ours.setblocking(False)
+try:
+    cut_after_stall = ours.recv(16) == b""
+except BlockingIOError:
+    cut_after_stall = False
+ours.setblocking(True)
+ours.settimeout(10)
+waited = time.monotonic()
+try:
+    cut_later = ours.recv(16) == b""
+except TimeoutError:
+    cut_later = False
+print(json.dumps({{"stall": stall, "cut_after_stall": cut_after_stall, "cut_later": cut_later,
+                  "cut_after_seconds": time.monotonic() - resumed}}), flush=True)
+"""
+
+
+def test_a_stall_of_the_process_itself_does_not_count_against_a_deadline() -> None:
+    """A process stopped for longer than a deadline (SIGSTOP here; a paused VM alike) does not cut its
+    sockets the moment it runs again: the stall is added to every armed deadline, which is there to
+    measure the database, not this process. Cutting then answered 503 "the database did not answer
+    within the write deadline" for writes whose own process had been frozen (a drill, 2026-12-07).
+    The deadline still holds afterwards, for the time the process ran."""
+    deadline = 1.0
+    child = subprocess.Popen(
+        [sys.executable, "-c", _STALLED_CHILD.format(deadline=deadline)],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=Path(__file__).resolve().parents[1],
+    )
+    try:
+        assert child.stdout is not None
+        assert child.stdout.readline().strip() == "armed"
+        time.sleep(0.1)
+        os.kill(child.pid, signal.SIGSTOP)
+        time.sleep(deadline + 1.5)
+        os.kill(child.pid, signal.SIGCONT)
+        report = json.loads(child.stdout.readline())
+    finally:
+        child.kill()
+        child.wait(10)
+    assert report["stall"] >= deadline + 1.0, report
+    assert not report["cut_after_stall"], report
+    # Cut once the process itself has run past its deadline: ≈ 0.9 s after it resumed, not 10.
+    assert report["cut_later"] and report["cut_after_seconds"] < deadline + 1.0, report

@@ -13,8 +13,10 @@ connection, so this protocol offers one as a scope extension (docs/stream.md,
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import socket
 import struct
+import termios
 
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
 
@@ -45,9 +47,15 @@ class ResettableWebSocketProtocol(WebSocketsSansIOProtocol):
         """uvicorn's (close with 1011 when no pong came), and tell the app, which uvicorn does not.
 
         Otherwise the app's next send fails with a RuntimeError in the log, and a connection whose
-        buffer never drains stays open; told, the stream ends and resets it.
+        buffer never drains stays open; told, the stream ends and resets it. When the kernel still
+        holds data the client has not taken, the close is a reset at once (:meth:`_close_with_reset`).
         """
         failing = not (self.close_sent or self.transport.is_closing())
+        if failing and self._kernel_holds_unsent_data():
+            # The close frame would wait behind data the client does not take, and once uvicorn's
+            # transport has nothing left to write it closes the socket at once: the kernel then kept
+            # the orphaned socket, its buffers and the FIN behind a closed window for over a minute.
+            self._close_with_reset()
         super().keepalive_timeout()
         if failing:
             self.queue.put_nowait({"type": "websocket.disconnect", "code": 1011, "reason": "keepalive ping timeout"})
@@ -62,8 +70,25 @@ class ResettableWebSocketProtocol(WebSocketsSansIOProtocol):
         """
         if self.disconnected:
             return
+        self._close_with_reset()
+        self.transport.abort()
+
+    def _close_with_reset(self) -> None:
+        """``SO_LINGER`` 0: closing the socket, whenever it happens, sends an RST and drops the kernel's buffers."""
         sock = self.transport.get_extra_info("socket")
         if sock is not None:
             with contextlib.suppress(OSError):  # not a TCP socket, or already shut down: abort is enough
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
-        self.transport.abort()
+
+    def _kernel_holds_unsent_data(self) -> bool:
+        """Whether the socket's kernel send queue still holds bytes the client has not acknowledged
+        (Linux's ``TIOCOUTQ``; False where it cannot be read)."""
+        sock = self.transport.get_extra_info("socket")
+        request = getattr(termios, "TIOCOUTQ", None)
+        if sock is None or request is None:
+            return False
+        try:
+            queued = fcntl.ioctl(sock.fileno(), request, struct.pack("i", 0))
+        except OSError:
+            return False
+        return struct.unpack("i", queued)[0] > 0

@@ -282,18 +282,31 @@ def test_sigterm_with_two_workers_closes_every_stream_with_1012(request: pytest.
     assert_clean_log(server)
 
 
-def test_a_keepalive_timeout_behind_a_full_buffer_reaches_the_app() -> None:
+@pytest.mark.parametrize(
+    "payload_bytes",
+    [
+        pytest.param(400_000, id="transport-buffer-full"),
+        pytest.param(60_000, id="kernel-buffer-only"),
+    ],
+)
+def test_a_keepalive_timeout_behind_a_full_buffer_reaches_the_app(payload_bytes: int) -> None:
     """uvicorn fails a connection whose pings go unanswered but does not tell the app; the protocol does.
 
     A real uvicorn server with short pings runs a bare ASGI app on this protocol: the app fills
     the stalled client's socket, waits for its next message, and resets the connection when told.
+    With 400 kB some data is still in uvicorn's transport, which does not close before it drains:
+    the app's reset ends it. With 60 kB it all fits in the server kernel's send buffer (~135 kB here)
+    but not in the client's: the transport closes the socket at once, and before the fix the kernel
+    kept an orphaned socket in FIN-WAIT-1, its unsent data and FIN stuck behind the client's closed
+    window, for over a minute (a drill of 50 non-reading subscribers, 2026-12-07); the keepalive's
+    close is now a reset when the kernel still holds unsent data.
     """
     told: queue.Queue[dict[str, Any]] = queue.Queue()
 
     async def app(scope: dict[str, Any], receive: Any, send: Any) -> None:
         await receive()  # websocket.connect
         await send({"type": "websocket.accept"})
-        await send({"type": "websocket.send", "bytes": b"x" * 400_000})  # more than every buffer on the way holds
+        await send({"type": "websocket.send", "bytes": b"x" * payload_bytes})
         told.put(await receive())
         scope["extensions"][RESET_EXTENSION]["reset"]()
 

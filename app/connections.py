@@ -38,6 +38,7 @@ import fcntl
 import math
 import mmap
 import os
+import select
 import socket
 import struct
 import sys
@@ -171,6 +172,26 @@ class HeaderDeadlineProtocol(HttpToolsProtocol):
     def on_headers_complete(self) -> None:
         self._disarm_header_deadline()
         super().on_headers_complete()
+
+    def timeout_keep_alive_handler(self) -> None:
+        """uvicorn's (close an idle kept-alive connection), unless the next request is already in
+        its socket: after a stall of this process (stopped, its machine paused) the keep-alive timer
+        and that request are due together, and the event loop runs the timer first, which reset a
+        request the client had sent. ``data_received`` comes next and unsets the keep-alive."""
+        if not self._readable():
+            super().timeout_keep_alive_handler()
+
+    def _readable(self) -> bool:
+        """Whether the connection's socket holds bytes to read (or the peer's end), without reading them."""
+        sock = self.transport.get_extra_info("socket")
+        if sock is None:
+            return False
+        poller = select.poll()  # not select.select: no limit on the descriptor's number
+        try:
+            poller.register(sock.fileno(), select.POLLIN)
+            return bool(poller.poll(0))
+        except (OSError, ValueError):  # closed meanwhile
+            return False
 
     def _arm_header_deadline(self) -> None:
         self._header_deadline = self.loop.call_later(self.read_timeout_seconds, self._header_deadline_passed)

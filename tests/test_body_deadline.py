@@ -9,6 +9,8 @@ while a normal request on another connection is served meanwhile. Both deadlines
 from __future__ import annotations
 
 import json
+import os
+import signal
 import socket
 import threading
 import time
@@ -246,3 +248,36 @@ def test_bytes_the_http_parser_refuses_get_a_400_in_the_error_shape_and_are_clos
     assert what.lower() in detail.lower(), detail
     with server.client() as client:
         assert client.get("/healthz").status_code == 200
+
+
+#: uvicorn's keep-alive time-out (``timeout_keep_alive``, app/serve.py keeps its 5 s).
+KEEP_ALIVE_SECONDS = 5.0
+
+
+def test_a_request_sent_while_the_server_was_stopped_is_served_not_reset(server: ServerProcess) -> None:
+    """A server process stopped (SIGSTOP; a paused VM alike) past its keep-alive time-out, while a
+    client sends its next request on the kept-alive connection, serves that request when it runs
+    again. Its event loop finds the keep-alive timer and the request due together and ran the timer
+    first (libuv's order after an interrupted poll), closing a connection with a request in it: the
+    client got a reset for a request it had sent (a drill of two replicas, one stopped 15 s, 2026-12-07)."""
+    with _connect(server) as sock:
+        sock.settimeout(KEEP_ALIVE_SECONDS + MARGIN_SECONDS + 10)
+        request = b"GET /healthz HTTP/1.1\r\nHost: test\r\n\r\n"
+        sock.sendall(request)
+        received = b""
+        while not _is_complete_response(received):
+            received += sock.recv(65536)
+        assert received.startswith(b"HTTP/1.1 200"), received
+        time.sleep(0.2)  # the server idles in its event loop's poll, the keep-alive timer armed
+        os.kill(server.pid, signal.SIGSTOP)
+        try:
+            sock.sendall(request)
+            time.sleep(KEEP_ALIVE_SECONDS + 1.5)
+        finally:
+            os.kill(server.pid, signal.SIGCONT)
+        received = b""
+        while not _is_complete_response(received):
+            chunk = sock.recv(65536)
+            assert chunk, f"the server closed the connection with the request unanswered: {received!r}"
+            received += chunk
+    assert received.startswith(b"HTTP/1.1 200"), received

@@ -39,10 +39,25 @@ class RedactKeys(logging.Filter):
         return True
 
 
-def log_config() -> dict[str, Any]:
-    """uvicorn's default logging configuration with :class:`RedactKeys` on every handler."""
+#: The format of the service's own lines (and every library's but uvicorn's): ``WARNING:     contextweb: …``.
+LOG_FORMAT = "%(levelname)s:     %(name)s: %(message)s"
+
+
+def log_config(level: str = "info") -> dict[str, Any]:
+    """uvicorn's default logging configuration with :class:`RedactKeys` on every handler, and the
+    root logger at ``level`` writing the service's own lines (``contextweb``, psycopg, …) in
+    :data:`LOG_FORMAT`. uvicorn applies it in every worker process: a worker of ``--workers N`` is a
+    new interpreter, and without the root logger here it had no handler for the service's lines
+    (its start-up lines were lost, and a warning came out bare, without its level)."""
     config = copy.deepcopy(LOGGING_CONFIG)
     config.setdefault("filters", {})["redact_keys"] = {"()": f"{__name__}.RedactKeys"}
+    config["formatters"]["contextweb"] = {"format": LOG_FORMAT}
+    config["handlers"]["contextweb"] = {
+        "class": "logging.StreamHandler",
+        "formatter": "contextweb",
+        "stream": "ext://sys.stderr",
+    }
     for handler in config["handlers"].values():
         handler.setdefault("filters", []).append("redact_keys")
+    config["root"] = {"handlers": ["contextweb"], "level": level.upper()}
     return config

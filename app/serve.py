@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 from sqlalchemy.exc import OperationalError
 
 from app.connections import WorkerListener, create_counts, set_header_read_timeout
-from app.logs import log_config
+from app.logs import LOG_FORMAT, log_config
 from app.settings import LOOPBACK_HOSTS, Settings
 from storage.database import create_database_engine
 from storage.migrations import require_schema_at_head, upgrade_to_head
@@ -113,7 +113,7 @@ def run_serve(args: argparse.Namespace) -> int:
 
     overrides: dict[str, Any] = {name: value for name in ("host", "port") if (value := getattr(args, name)) is not None}
     settings = Settings(**overrides)
-    logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s:     %(name)s: %(message)s")
+    logging.basicConfig(level=args.log_level.upper(), format=LOG_FORMAT)  # until uvicorn applies log_config
     host = settings.bind_host()
     if not settings.auth_enabled:
         moved = f" (not {settings.host})" if settings.host not in LOOPBACK_HOSTS else ""
@@ -130,7 +130,7 @@ def run_serve(args: argparse.Namespace) -> int:
         "host": host,
         "port": settings.port,
         "log_level": args.log_level,
-        "log_config": log_config(),
+        "log_config": log_config(args.log_level),
         "access_log": False,
         "ws": "app.websocket_protocol:ResettableWebSocketProtocol",  # slow stream clients can be dropped (docs/stream.md)
         "http": "app.connections:HeaderDeadlineProtocol",  # stalled headers are cut (app/connections.py)

@@ -1,4 +1,5 @@
-"""No API key appears in the server's log: the websocket's ``api_key`` query value is redacted.
+"""No API key appears in the server's log: the websocket's ``api_key`` query value is redacted; and
+every worker's own lines reach the log, with their level.
 
 A real ``contextweb serve --workers 2`` at log level info (uvicorn logs each
 websocket's path with its query string); a dashboard opens the stream with its
@@ -8,6 +9,7 @@ key in the query, as browsers must.
 from __future__ import annotations
 
 import logging
+import time
 from pathlib import Path
 
 import httpx
@@ -36,6 +38,13 @@ def test_the_streams_key_never_reaches_the_log(request, tmp_path: Path) -> None:
         stream = f"ws://127.0.0.1:{server.port}/v1/models/{model.json()['id']}/stream?api_key={READ_KEY}"
         with connect(stream, open_timeout=20) as websocket:
             assert '"hello"' in websocket.recv(timeout=20)
+        deadline = time.monotonic() + 60  # the other worker may still be warming up
+        while server.log(tail=100_000).count("model(s) loaded from") < 2 and time.monotonic() < deadline:
+            time.sleep(0.2)
         log = server.log(tail=100_000)
     assert "WebSocket /v1/models/" in log and f"api_key={REDACTED}" in log, log[-2000:]
     assert READ_KEY not in log and WRITE_KEY not in log
+    # Each worker writes the service's own lines, with their level: a worker is a new interpreter,
+    # and before log_config configured the root logger its start-up lines were lost (a drill).
+    loaded = [line for line in log.splitlines() if "model(s) loaded from" in line]
+    assert len(loaded) == 2 and all(line.startswith("INFO:     contextweb: ") for line in loaded), log[-3000:]

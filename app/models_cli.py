@@ -5,7 +5,8 @@ below it; it exits 0 when every model checked is sound, 1 when any has a problem
 and 2 for an unknown ID. ``repair`` rebuilds a model's counts from its scenes and
 token assignments (storage.repositories.consistency), prints what changed, checks
 the model again and exits 0 when it is sound afterwards. Both read the database
-of ``CONTEXTWEB_DATABASE_URL`` (the server's), which may be served meanwhile: each model is
+of ``CONTEXTWEB_DATABASE_URL`` (the server's), which must be at the head revision (else exit 75,
+as ``serve`` and ``keys``), and may be served meanwhile: each model is
 checked in one snapshot (``storage.database.snapshot``), so a scene committed during the check
 is not taken for damage, and a repair bumps the model's version, so serving processes reload it.
 """
@@ -21,6 +22,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.settings import Settings
 from storage.database import create_database_engine, create_session_makers, snapshot
+from storage.migrations import require_schema_at_head
 from storage.repositories import consistency
 from storage.unit_of_work import unit_of_work
 
@@ -44,6 +46,7 @@ def _session_makers() -> Iterator[tuple[sessionmaker[Session], sessionmaker[Sess
     settings = Settings()
     engine = create_database_engine(settings.resolved_database_url, sqlite_synchronous=settings.sqlite_synchronous)
     try:
+        require_schema_at_head(engine)  # else one line and exit 75 (app/cli.py), not a traceback or a false "ok"
         yield create_session_makers(engine)
     finally:
         engine.dispose()

@@ -143,12 +143,16 @@ def _previous_revision() -> str:
 
 
 @pytest.mark.parametrize(
-    ("command", "revision"), [("serve", None), ("serve", "previous"), ("keys", None)], ids=["empty", "behind", "keys"]
+    ("command", "revision"),
+    [("serve", None), ("serve", "previous"), ("keys", None), ("models", "previous")],
+    ids=["empty", "behind", "keys", "models"],
 )
 def test_a_database_not_at_head_is_refused_with_one_line_and_exit_75(
     tmp_path: Path, command: str, revision: str | None
 ) -> None:
-    """``serve`` (and ``keys``) never migrate: they name the two revisions and say what to run."""
+    """``serve`` (and ``keys``, ``models``) never migrate: they name the two revisions and say what
+    to run. ``models check`` on a schema one revision behind said "ok" before, and on an older one
+    printed a traceback and exited 1, its code for "problems found" (a drill, 2026-12-07)."""
     from sqlalchemy import inspect
 
     from alembic import command as alembic_command
@@ -164,7 +168,7 @@ def test_a_database_not_at_head_is_refused_with_one_line_and_exit_75(
             alembic_command.upgrade(config, _previous_revision())
     before, head = schema_revisions(engine)
     tables_before = set(inspect(engine).get_table_names())
-    argv = ["serve"] if command == "serve" else ["keys", "list"]
+    argv = {"serve": ["serve"], "keys": ["keys", "list"], "models": ["models", "check"]}[command]
     result = subprocess.run(
         [sys.executable, "-m", "app.cli", *argv],
         capture_output=True,

@@ -22,8 +22,7 @@ from app.errors import InvalidInput, KeyNotFound
 from app.schemas.keys import ApiKeyCreate, ApiKeyRead
 from app.services import keys as key_service
 from app.settings import Settings
-from storage.database import create_database_engine, create_session_makers
-from storage.migrations import require_schema_at_head
+from storage.migrations import sessions_at_head
 from storage.unit_of_work import unit_of_work
 
 DONE = 0
@@ -49,12 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 @contextmanager
 def _write_sessions() -> Iterator[sessionmaker[Session]]:
     settings = Settings()
-    engine = create_database_engine(settings.resolved_database_url, sqlite_synchronous=settings.sqlite_synchronous)
-    try:
-        require_schema_at_head(engine)
-        yield create_session_makers(engine)[1]
-    finally:
-        engine.dispose()
+    with sessions_at_head(settings.resolved_database_url, sqlite_synchronous=settings.sqlite_synchronous) as makers:
+        yield makers[1]
 
 
 def _describe(key: ApiKeyRead) -> str:

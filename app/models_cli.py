@@ -21,8 +21,8 @@ from contextlib import contextmanager
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.settings import Settings
-from storage.database import create_database_engine, create_session_makers, snapshot
-from storage.migrations import require_schema_at_head
+from storage.database import snapshot
+from storage.migrations import sessions_at_head
 from storage.repositories import consistency
 from storage.unit_of_work import unit_of_work
 
@@ -43,13 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 @contextmanager
 def _session_makers() -> Iterator[tuple[sessionmaker[Session], sessionmaker[Session]]]:
-    settings = Settings()
-    engine = create_database_engine(settings.resolved_database_url, sqlite_synchronous=settings.sqlite_synchronous)
-    try:
-        require_schema_at_head(engine)  # else one line and exit 75 (app/cli.py), not a traceback or a false "ok"
-        yield create_session_makers(engine)
-    finally:
-        engine.dispose()
+    settings = Settings()  # a database not at the head revision: one line and exit 75, not a false "ok"
+    with sessions_at_head(settings.resolved_database_url, sqlite_synchronous=settings.sqlite_synchronous) as makers:
+        yield makers
 
 
 def _model_name(session: Session, model_id: str) -> str | None:

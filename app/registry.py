@@ -752,12 +752,18 @@ class ModelRegistry:
         with self._snapshot() as session:
             model_ids = [row.id for row in model_repository.list_models(session)]
         for model_id in model_ids:
-            with self._snapshot() as session:
-                row = model_repository.get_model(session, model_id)
-                if row is not None:  # else deleted since the list
-                    self.add(_loaded_or_unavailable(session, row))
+            model = self._stored(model_id)
+            if model is not None:  # else deleted since the list
+                self.add(model)
 
     # Keeping memory equal to the database.
+
+    def _stored(self, model_id: str) -> ModelRuntime | None:
+        """The model as stored, read in one snapshot (unavailable if its state fails its check); None
+        if there is no such model."""
+        with self._snapshot() as session:
+            row = model_repository.get_model(session, model_id)
+            return None if row is None else _loaded_or_unavailable(session, row)
 
     def _snapshot(self) -> AbstractContextManager[Session]:
         """One snapshot for a model's load, reload or catch-up, cut at the load deadline: a database
@@ -787,11 +793,9 @@ class ModelRegistry:
         with self._lock:  # one loader per new model: concurrent first requests wait for it
             model = self._models.get(model_id)
             if model is None:
-                with self._snapshot() as session:
-                    row = model_repository.get_model(session, model_id)
-                    if row is None:
-                        raise ModelNotFound(model_id)
-                    model = _loaded_or_unavailable(session, row)
+                model = self._stored(model_id)
+                if model is None:
+                    raise ModelNotFound(model_id)
                 self._configure(model)
                 self._models[model_id] = model
         if model.unavailable is not None:

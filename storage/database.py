@@ -487,9 +487,7 @@ def pipelined(session: Session, *, begin: bool = False, commit: bool = False) ->
                 # which says nothing this error does not.
                 failed = error
     except driver_error as error:
-        if failed is None:
-            raise _as_sqlalchemy_error(connection, "(pipeline)", (), error) from error
-        # else ending the aborted pipeline failed too: the block's error is the cause
+        failed = failed or error  # ending an aborted pipeline fails too: the block's error is the cause
     if isinstance(failed, DBAPIError):
         raise failed
     if failed is not None:

@@ -3,19 +3,23 @@
 ``contextweb migrate`` (which the container's entry point and ``make run`` call) and the
 tests' database fixtures run :func:`upgrade_to_head`: the migrations are the only schema
 source, and they run in one place. ``contextweb serve``, the app's lifespan and
-``contextweb keys`` only check the schema (:func:`require_schema_at_head`) and refuse to
+``contextweb keys`` and ``contextweb models`` only check the schema (:func:`require_schema_at_head`) and refuse to
 work on a database that is not at the head revision.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
 from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
 from sqlalchemy import Engine, text
+from sqlalchemy.orm import Session, sessionmaker
 
 from alembic import command
-from storage.database import PROJECT_ROOT
+from storage.database import PROJECT_ROOT, create_database_engine, create_session_makers
 
 ALEMBIC_DIRECTORY = PROJECT_ROOT / "alembic"
 
@@ -69,3 +73,18 @@ def require_schema_at_head(engine: Engine) -> None:
     current, head = schema_revisions(engine)
     if current != head:
         raise SchemaNotAtHead(current, head)
+
+
+@contextmanager
+def sessions_at_head(
+    url: str, *, sqlite_synchronous: str = "FULL"
+) -> Iterator[tuple[sessionmaker[Session], sessionmaker[Session]]]:
+    """The read and write session makers of a one-off command (``contextweb keys``, ``contextweb
+    models``) on the database at ``url``, which must be at the head revision (else
+    :class:`SchemaNotAtHead`: one line and exit 75, app/cli.py); the engine is disposed after."""
+    engine = create_database_engine(url, sqlite_synchronous=sqlite_synchronous)
+    try:
+        require_schema_at_head(engine)
+        yield create_session_makers(engine)
+    finally:
+        engine.dispose()

@@ -10,7 +10,8 @@ transaction of the model's writer (app/registry.py ``ModelWriter``): the model's
 lock in this process and in the database are held around the whole unit of work
 (catch-up, in-memory update, flush, commit, then the events) so that memory
 follows the database: if anything fails, the writer reloads the model from the
-database or marks it unavailable before the lock is released. It is a context
+database (a scene: takes it back out of memory exactly) or marks it unavailable
+before the lock is released. It is a context
 manager the route opens around its one service call, not a dependency: a sync
 dependency with ``yield`` costs two extra hops to the thread pool (enter and
 exit), and the scene route is the hot path.
@@ -199,12 +200,13 @@ def model_write(
     then the commit. Memory follows the database: a service asks the writer to change memory
     ahead of the commit (a scene) only once the request is accepted, so that a request refused
     before that (a 422) costs no reload; if anything fails once memory may hold the write, the
-    writer's one undo marks the model unavailable and reloads it from one snapshot (at once if
-    the database answers, else on a later request).
+    writer's one undo takes a scene back out of memory exactly, or else marks the model
+    unavailable and reloads it from one snapshot (at once if the database answers, else on a
+    later request).
 
     A write that collides with a row the database already holds (a unique key: a writer elsewhere
     that ignored the model's lock, or rows restored under it) is a 503 ``model_unavailable`` too,
-    not a 500: nothing of it was stored, the undo has reloaded memory from the database, and the
+    not a 500: nothing of it was stored, the undo has taken it back out of memory, and the
     client's retry meets the stored rows (a keyed scene then replays, or the reload names the
     stored state's problem for ``contextweb models check``).
 

@@ -13,8 +13,11 @@ The database is the truth, and memory follows it (docs/scaling.md):
   whose write failed is reloaded;
 - :func:`catch_up` brings a runtime that is behind (another process wrote) to
   the stored version, reading only the rows written since its own version;
+- a failed scene write is taken back out of memory exactly
+  (:meth:`IncrementalLDA.undo_scene`), which leaves memory equal to the database
+  at the version it held, so the model serves on without a reload;
 - a model whose stored state cannot be loaded, or whose memory could not be
-  proven equal to the database after a failed write, is *unavailable* (503
+  proven equal to the database after any other failed write, is *unavailable* (503
   ``model_unavailable``) until a reload succeeds; the other models serve on.
 """
 
@@ -34,7 +37,14 @@ import numpy as np
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.errors import ModelNotFound, ModelUnavailable, is_storage_failure, storage_error, storage_failure_reason
+from app.errors import (
+    ModelNotFound,
+    ModelUnavailable,
+    is_storage_failure,
+    is_write_conflict,
+    storage_error,
+    storage_failure_reason,
+)
 from app.services.limits import VocabularyLimits
 from app.services.perception import Perception
 from app.settings import DEFAULT_CHECKPOINT_INTERVAL
@@ -136,7 +146,7 @@ class ModelWriter:
     (:meth:`learn_scene`, :meth:`count_training_objects`, :meth:`install_fit`); what must wait
     for the commit is applied after it, and a change that memory already holds is undone by
     :meth:`undo` if the write fails: the one place where memory that may lead the database is
-    reloaded from it, or else marked unavailable. Read the state through :class:`ModelRuntime`;
+    taken back (a scene, exactly), or reloaded from the database, or else marked unavailable. Read the state through :class:`ModelRuntime`;
     readers that need several of its values consistent hold :attr:`lock` while they read.
     """
 
@@ -179,6 +189,9 @@ class ModelWriter:
         """True while memory holds changes the database may not (from the change to the commit)."""
         self._on_commit: list[Callable[[], None]] = []
         """What waits for the commit of the open write."""
+        self._learned: tuple[SceneUpdate, int] | None = None
+        """The open write's scene, if memory holds nothing else of it, and how many words had a
+        kind before it: what :meth:`undo` takes back exactly."""
         self._writing = False
         self._known_labels: tuple[int, dict[int, str]] | None = None
         """The contexts' labels as stored at a database version (the version, the labels): what a
@@ -255,6 +268,7 @@ class ModelWriter:
         finally:
             self._changed = self._writing = False
             self._on_commit.clear()
+            self._learned = None
             if holding:
                 self.lock.release()
 
@@ -273,6 +287,7 @@ class ModelWriter:
         return dataclasses.replace(locked, labels=labels)
 
     def _committed(self, write: ModelWrite) -> None:
+        self._learned = None  # committed: from here only a reload follows the database
         if not write.unchanged:
             self.version = write.version
             # A write that may have changed the labels leaves them unknown at its version (the next
@@ -305,10 +320,22 @@ class ModelWriter:
         snapshot: at once after a failed write (the database answered its statements), or by a
         later request after a failed catch-up of a read (a backoff: its database just failed).
         A reload that fails leaves the model unavailable until one succeeds. Under :attr:`lock`.
+
+        A write whose only change to memory is one learned scene, failed before its commit
+        returned, is undone exactly instead (:meth:`IncrementalLDA.undo_scene`): memory is then
+        what it was at :attr:`version`, which the database held before the write and holds still
+        unless its commit landed unseen (then the next request catches up from the stored rows, as
+        after another process's write). The model serves on: a database that fails writes for a
+        while (a full disk) costs no reload per write, which takes seconds at a million scenes. Not
+        so a write that conflicts with a stored row: the database holds what memory does not, so
+        the reload's check is what names it.
         """
         self._changed = False
         self._on_commit.clear()
         if self.deleted:
+            return
+        # A conflict with a stored row says the database holds what memory does not: reload, and its check names it.
+        if self._learned is not None and not is_write_conflict(error) and self._undo_scene(error):
             return
         if not reload_now:
             _mark_failed(self, error, "catching up with the database failed")
@@ -326,11 +353,33 @@ class ModelWriter:
         """Incremental-LDA learns ``words`` (Algorithm 2's loop body), new words get ``kind_of(word)``;
         memory holds the scene from here (undone if the write fails), the summary follows the commit."""
         self._check_writing()
+        first_write = not self._changed
         self._changed = True
         update = self.incremental_lda.learn_scene(words)
+        self._learned = (update, len(self.word_kinds)) if first_write else None
         self.word_kinds.extend(kind_of(name) for name in update.vocabulary_additions)
         self._on_commit.append(self.publish_summary)
         return update
+
+    def _undo_scene(self, error: BaseException) -> bool:
+        """Take the failed write's one scene back out of memory (:meth:`undo`); False when it cannot
+        be (memory is then unproven and the caller reloads)."""
+        update, kinds = self._learned  # type: ignore[misc]
+        self._learned = None
+        try:
+            self.incremental_lda.undo_scene(update)
+        except Exception:
+            logger.exception("model %s: a failed write's scene could not be taken back; reloading", self.id)
+            return False
+        del self.word_kinds[kinds:]
+        logger.warning(
+            "model %s: a write failed (%s); its scene was taken back out of memory, which equals the "
+            "database at version %d, and the model serves on",
+            self.id,
+            storage_failure_reason(error),
+            self.version,
+        )
+        return True
 
     def count_training_objects(self, total: int) -> None:
         """The model has ``total`` training objects once the write commits."""

@@ -120,11 +120,60 @@ def test_scene_updates_replay_the_model_exactly() -> None:
     assert np.array_equal(stored, state.n_kw)
 
 
+def _same_model(model: IncrementalLDA, other: IncrementalLDA) -> None:
+    mine, theirs = model.to_state(), other.to_state()
+    assert mine.vocabulary == theirs.vocabulary and mine.n_contexts == theirs.n_contexts
+    assert mine.rng_state == theirs.rng_state
+    for name in ("words", "assignments", "doc_offsets", "n_kw"):
+        assert np.array_equal(getattr(mine, name), getattr(theirs, name)), name
+    for name in ("n_k", "n_dk"):
+        assert np.array_equal(getattr(model.lda_state, name), getattr(other.lda_state, name)), name
+    assert model.unseen_words(other.vocabulary) == []
+
+
+def test_an_undone_scene_leaves_the_model_exactly_as_before_it() -> None:
+    """undo_scene after every update of an online stream, growth and new concepts included: the
+    model equals its copy from before the update, and learning the scene again gives the same
+    update as the first try; a model that never undid anything ends the stream the same."""
+    model = IncrementalLDA(seed=7, **ONLINE)
+    never_undone = IncrementalLDA(seed=7, **ONLINE)
+    scenes = list(_paper_scenes(45, 7))
+    scenes[20] = scenes[20] + ("teapot", "spoon")  # concepts the model has not seen
+    kinds = {"grew": 0, "added concepts": 0, "moved earlier tokens": 0}
+    for scene in scenes:
+        before = copy.deepcopy(model)
+        update = model.learn_scene(scene)
+        model.undo_scene(update)
+        _same_model(model, before)
+        again = model.learn_scene(scene)
+        for name in ("word_ids", "assignments", "reassigned_tokens", "reassigned_contexts", "changed_counts"):
+            assert np.array_equal(getattr(again, name), getattr(update, name)), name
+        assert np.array_equal(again.context_posterior, update.context_posterior)
+        never_undone.learn_scene(scene)
+        kinds["grew"] += update.contexts_after > update.contexts_before
+        kinds["added concepts"] += bool(update.vocabulary_additions)
+        kinds["moved earlier tokens"] += update.reassigned_tokens.size > 0
+    assert all(kinds.values()), kinds
+    _same_model(model, never_undone)
+    model.check_invariants()
+
+
+def test_undo_refuses_an_update_that_is_not_the_last_change() -> None:
+    model = IncrementalLDA(seed=0, **ONLINE)
+    first = model.learn_scene(["cup", "plate", "cup"])
+    model.learn_scene(["cup", "plate"])
+    before = copy.deepcopy(model)
+    with pytest.raises(ValueError, match="not the model's last change"):
+        model.undo_scene(first)
+    _same_model(model, before)
+
+
 def test_scene_changes_shortcuts_give_the_general_paths_result(monkeypatch: pytest.MonkeyPatch) -> None:
     """scene_changes sums a small vocabulary's count changes in a dense table instead of sorting
     its keys: everything it returns, the rows' order by concept then context included, is what
     the general path gives (the kernel's plain-Python version, forced onto it). The moved tokens
-    are those whose context now differs from their first entry's, as a plain dict finds them."""
+    are those whose context now differs from their first entry's, as a plain dict finds them, and
+    their contexts before are those first entries'."""
     compiled = gibbs_kernels.scene_changes
     compared = []
 
@@ -141,10 +190,11 @@ def test_scene_changes_shortcuts_give_the_general_paths_result(monkeypatch: pyte
             first_context.setdefault(token, context)
         moved = sorted(token for token, context in first_context.items() if z[token] != context)  # type: ignore[index]
         assert dense[0].tolist() == moved and dense[1].tolist() == [z[token] for token in moved]  # type: ignore[index]
-        rows = dense[2]
+        assert dense[2].tolist() == [first_context[token] for token in moved]
+        rows = dense[3]
         assert np.all(np.diff(rows[:, 1] * 1_000 + rows[:, 0]) > 0)
         n_wk, k_capacity = arguments[6], arguments[10]
-        fewest_keys = len(dense[0]) + len(dense[3])  # a key per reassigned token and per scene token at least
+        fewest_keys = len(dense[0]) + len(dense[4])  # a key per reassigned token and per scene token at least
         compared.append(n_wk.shape[0] * k_capacity <= 4 * fewest_keys)  # type: ignore[attr-defined, operator]
         return dense
 

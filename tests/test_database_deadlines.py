@@ -344,53 +344,65 @@ def test_a_frozen_database_ends_a_models_catch_up_and_first_load_at_the_load_dea
 
 
 def test_a_write_to_a_model_whose_reload_just_failed_is_refused_before_it_waits_for_a_lock(tmp_path: Path) -> None:
-    """A write fails in its ``COMMIT`` (its backend ended while new connections are refused): its
-    undo's reload fails too, and the model stays unavailable while the reload's 1 s back-off runs.
-    The next write, sent at once with connections allowed again, finds the model's row held by an
-    outside transaction: it is answered 503 ``model_unavailable`` before it waits for that lock.
-    Without the early refusal it waits for the lock's time-out (10 s), as each write queued behind
-    a failed one would in turn."""
+    """Process B's write to a model that process A wrote to fails in its catch-up (its backend ended
+    while new connections are refused): the undo's reload fails too, and the model stays
+    unavailable on B while the reload's 1 s back-off runs. The next write to B, sent at once with
+    connections allowed again, finds the model's row held by an outside transaction: it is
+    answered 503 ``model_unavailable`` before it waits for that lock. Without the early refusal it
+    waits for the lock's time-out (10 s), as each write queued behind a failed one would in turn.
+    (A failed write whose only change is its scene no longer needs a reload: it is taken back
+    exactly, tests/test_model_writer.py; a failed catch-up does need one.)"""
     bodies = concept_scenes(8, seed=29)
-    with (
-        fresh_postgres_database("contextweb_early_refusal") as url,
-        running_server(url, tmp_path) as server,
-        httpx.Client(base_url=server.base_url, timeout=30) as client,
-    ):
-        model_id, posts = model_with_keyed_posts(server.base_url, bodies, name="early-refusal", posted=4)
-        with slow_commits(url, "scene", 30), psycopg.connect(libpq_url(url)) as outside:
-            row_taken = threading.Event()
-            answered = threading.Event()
+    with fresh_postgres_database("contextweb_early_refusal") as url:
+        a, b = start_servers([url, url], tmp_path)
+        try:
+            model_id, posts = model_with_keyed_posts(a.base_url, bodies, name="early-refusal", posted=3)
+            with httpx.Client(base_url=b.base_url, timeout=30) as client:
+                assert client.get(f"/v1/models/{model_id}").status_code == 200  # B loads it
+            with httpx.Client(base_url=a.base_url, timeout=30) as client:
+                assert post_keyed_once(client, model_id, posts[3]).status_code == 201  # B is behind now
+            with (
+                httpx.Client(base_url=b.base_url, timeout=30) as client,
+                psycopg.connect(libpq_url(url)) as tables,
+                psycopg.connect(libpq_url(url)) as outside,
+            ):
+                tables.execute("LOCK TABLE token_batch IN ACCESS EXCLUSIVE MODE")  # holds B's catch-up
+                row_taken = threading.Event()
+                answered = threading.Event()
 
-            def take_the_row() -> None:  # waits for the write's lock, so gets the row when its backend ends
-                outside.execute("SELECT 1 FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (model_id,))
-                row_taken.set()
+                def take_the_row() -> None:  # waits for the write's lock, so gets the row when its backend ends
+                    outside.execute("SELECT 1 FROM incremental_lda_state WHERE model_id = %s FOR UPDATE", (model_id,))
+                    row_taken.set()
 
-            def end_the_commit() -> None:
-                pid, _ = backend_when(url, "wait_event = 'PgSleep'")
-                taker.start()
-                backend_when(url, "wait_event_type = 'Lock'")
-                with connections_refused(database_name(url)):
-                    end_backend(pid)
-                    answered.wait(20)  # the write's answer: its undo's reload has failed
+                def end_the_catch_up() -> None:
+                    pid, _ = backend_when(url, "wait_event_type = 'Lock' AND query LIKE '%token_batch%'")
+                    taker.start()
+                    backend_when(url, f"wait_event_type = 'Lock' AND pid <> {pid} AND query LIKE '%FOR UPDATE%'")
+                    with connections_refused(database_name(url)):
+                        end_backend(pid)
+                        answered.wait(20)  # the write's answer: its undo's reload has failed
+                    tables.commit()
 
-            taker = threading.Thread(target=take_the_row)
-            fault = threading.Thread(target=end_the_commit)
-            fault.start()
-            failed = post_keyed_once(client, model_id, posts[4])
-            answered.set()
-            fault.join(30)  # connections allowed again
-            assert failed.status_code == 503, failed.text
-            assert row_taken.wait(10), "the outside transaction never got the model's row"
-            started = time.monotonic()
-            refused = post_keyed_once(client, model_id, posts[5])
-            seconds = time.monotonic() - started
-            outside.commit()
-            taker.join(10)
-        assert refused.status_code == 503 and refused.headers["retry-after"], refused.text
-        assert refused.json()["error"] == "model_unavailable", refused.text
-        assert seconds < 0.5, seconds
-
-        for post in posts[4:]:  # the database back: every retry stores its scene, once
-            _post_until_stored(client, model_id, post)
-        problems = model_invariants(url, [server.base_url], model_id, posts)
-        assert not problems, "\n".join(problems)
+                taker = threading.Thread(target=take_the_row)
+                fault = threading.Thread(target=end_the_catch_up)
+                fault.start()
+                failed = post_keyed_once(client, model_id, posts[4])
+                answered.set()
+                fault.join(30)  # connections allowed again
+                assert failed.status_code == 503, failed.text
+                assert row_taken.wait(10), "the outside transaction never got the model's row"
+                started = time.monotonic()
+                refused = post_keyed_once(client, model_id, posts[5])
+                seconds = time.monotonic() - started
+                outside.commit()
+                taker.join(10)
+            assert refused.status_code == 503 and refused.headers["retry-after"], refused.text
+            assert refused.json()["error"] == "model_unavailable", refused.text
+            assert seconds < 0.5, seconds
+            with httpx.Client(base_url=b.base_url, timeout=30) as client:
+                for post in posts[4:]:  # the database back: every retry stores its scene, once
+                    _post_until_stored(client, model_id, post)
+            problems = model_invariants(url, [a.base_url, b.base_url], model_id, posts)
+            assert not problems, "\n".join(problems)
+        finally:
+            stop_all([a, b])

@@ -18,7 +18,9 @@ What must hold (issue 13): every attempt is a 201 or a 503 JSON error with
 ``Retry-After`` on a keep-alive connection that stays usable; ``/readyz`` is a
 503 with the reason while the database cannot take a write and 200 after;
 every acknowledged answer is stored as sent; scene and token ids have no gaps;
-n_kw equals the stored assignments; a restarted server loads the model.
+n_kw equals the stored assignments; a restarted server loads the model. And a
+write that failed after its scene was learned in memory took the scene back
+out of memory, without reloading the model (app/registry.py ``ModelWriter.undo``).
 """
 
 from __future__ import annotations
@@ -95,7 +97,7 @@ def _until_not_ready(server: ServerProcess, seconds: float) -> tuple[float | Non
 def _run_fault(tmp_path: Path, database: Path, fault: Callable[[], AbstractContextManager[object]]) -> None:
     """Serve ``database``, post from four robots, hold ``fault`` for a while, then check everything."""
     url = _migrated(database)
-    with running_server(url, tmp_path) as server:
+    with running_server(url, tmp_path, log_level="info") as server:
         model_id = create_model(server.base_url, FAST_HYPERPARAMETERS, name="disk")
         deadline = time.monotonic() + 45
         clients = [
@@ -122,7 +124,10 @@ def _run_fault(tmp_path: Path, database: Path, fault: Callable[[], AbstractConte
         finally:
             stop_clients(clients, join_seconds=30)
 
+        log = server.log(tail=10_000_000)
         assert_nothing_lost_then_restart(url, server, model_id, clients, readiness, tmp_path)
+    assert "its scene was taken back out of memory" in log, log[-3000:]
+    assert "reloaded from the database" not in log and "is being reloaded" not in log, log[-3000:]
 
 
 def test_full_disk_under_load_loses_nothing(tmp_path: Path) -> None:

@@ -55,14 +55,37 @@ def test_a_change_outside_a_write_is_refused(client: TestClient, model_id: str) 
     assert model.incremental_lda.n_scenes == scenes_before
 
 
-def test_a_write_that_fails_after_learning_is_undone_from_the_database(client: TestClient, model_id: str) -> None:
+def test_a_scene_write_that_fails_after_learning_is_taken_back_exactly(client: TestClient, model_id: str) -> None:
+    """The scene is taken back out of the same memory (no reload): it equals a fresh load from the
+    database, the model serves on, and the next scene gets the id the failed one had."""
+    for scene in concept_scenes(3, seed=5):
+        assert client.post(f"/v1/models/{model_id}/scenes", json=scene).status_code == 201
+    state, model = _state_and_model(client, model_id)
+    learned_before, kinds_before = model.incremental_lda, list(model.word_kinds)
+    with pytest.raises(WriteFailed), model.writer.transaction(state.write_sessions, state.registry):
+        model.writer.learn_scene(["cup", "plate", "a-new-word"], lambda _: "noun")
+        assert model.incremental_lda.n_scenes == 4, "memory holds the scene until the write ends"
+        assert len(model.word_kinds) == len(kinds_before) + 1
+        raise WriteFailed
+    assert model.unavailable is None
+    assert model.incremental_lda is learned_before, "taken back in place, not reloaded"
+    assert model.incremental_lda.n_scenes == 3 and "a-new-word" not in model.incremental_lda.vocabulary
+    assert list(model.word_kinds) == kinds_before
+    _assert_memory_equals_database(state, model)
+    response = client.post(f"/v1/models/{model_id}/scenes", json=concept_scenes(1, seed=9)[0])
+    assert response.status_code == 201 and response.json()["scene_id"] == 3
+
+
+def test_a_failed_write_that_changed_more_than_one_scene_is_reloaded(client: TestClient, model_id: str) -> None:
+    """Only a write whose one change to memory is one scene is taken back; any other is reloaded
+    from the database at once (it answers), and memory equals it."""
     for scene in concept_scenes(3, seed=5):
         assert client.post(f"/v1/models/{model_id}/scenes", json=scene).status_code == 201
     state, model = _state_and_model(client, model_id)
     learned_before = model.incremental_lda
     with pytest.raises(WriteFailed), model.writer.transaction(state.write_sessions, state.registry):
+        model.writer.learn_scene(["cup", "plate"], lambda _: "noun")
         model.writer.learn_scene(["cup", "plate", "a-new-word"], lambda _: "noun")
-        assert model.incremental_lda.n_scenes == 4, "memory holds the scene until the write ends"
         raise WriteFailed
     assert model.unavailable is None, "the database answers, so the model was reloaded at once"
     assert model.incremental_lda is not learned_before and model.incremental_lda.n_scenes == 3

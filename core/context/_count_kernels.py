@@ -1,4 +1,5 @@
-"""Numba kernels that rebuild the Incremental-LDA count tables from the assignments.
+"""Numba kernels that rebuild the Incremental-LDA count tables from the assignments, or take
+the last online update back out of them.
 
 A start of a long-lived model rebuilds n_wk, n_k and n_dk (Eq. 5's counts) from the
 checkpointed assignments of every token. ``np.bincount`` over ``words * K + z`` does it too,
@@ -38,3 +39,39 @@ def count_assignments(
         n_wk[words[token], context] += 1
         n_k[context] += 1
         n_dk[token_scene[token], context] += 1
+
+
+@numba.njit(cache=True, nogil=True)
+def remove_scene(
+    moved: np.ndarray,
+    contexts_before: np.ndarray,
+    scene: int,
+    offsets: np.ndarray,
+    words: np.ndarray,
+    z: np.ndarray,
+    token_scene: np.ndarray,
+    n_wk: np.ndarray,
+    n_k: np.ndarray,
+    n_dk: np.ndarray,
+) -> None:
+    """The inverse of an online update of the last ``scene``: each earlier token ``moved[j]``
+    returns to context ``contexts_before[j]`` (−1: unassigned), then the scene's own tokens leave
+    n_wk, n_k and n_dk (their z and words stay as garbage past the corpus's end)."""
+    for j in range(moved.shape[0]):
+        token = moved[j]
+        word, document, now, before = words[token], token_scene[token], z[token], contexts_before[j]
+        if now >= 0:
+            n_wk[word, now] -= 1
+            n_k[now] -= 1
+            n_dk[document, now] -= 1
+        if before >= 0:
+            n_wk[word, before] += 1
+            n_k[before] += 1
+            n_dk[document, before] += 1
+        z[token] = before
+    for token in range(offsets[scene], offsets[scene + 1]):
+        context = z[token]
+        if context >= 0:
+            n_wk[words[token], context] -= 1
+            n_k[context] -= 1
+            n_dk[scene, context] -= 1

@@ -677,13 +677,13 @@ def scene_changes(
     n_contexts: int,
     alpha: float,
     k_capacity: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """What an online update of scene ``d`` (the last one) changed, from the earlier tokens it may
     have moved (``touched``, with their contexts before, ``previous``; a token listed more than
     once counts with its first entry).
 
     Returns the earlier tokens whose context differs from their first ``previous`` (ascending,
-    int64) and their contexts now (int32); the n_kw entries with a nonzero net change, as rows
+    int64), their contexts now and before (int32, what undoes the update); the n_kw entries with a nonzero net change, as rows
     (context, concept, count now) ordered by concept × ``k_capacity`` + context (int64, m × 3; the
     scene's tokens count as new); the scene's contexts (int32); and its θ = (n_dk + α) / (N_d + Kα).
 
@@ -777,4 +777,11 @@ def scene_changes(
     denominator = (stop - start) + n_contexts * alpha
     for k in range(n_contexts):
         theta[k] = (n_dk[d, k] + alpha) / denominator
-    return reassigned[:n_reassigned].copy(), contexts[:n_reassigned].copy(), rows[:n_rows].copy(), assignments, theta
+    return (
+        reassigned[:n_reassigned].copy(),
+        contexts[:n_reassigned].copy(),
+        old[:n_reassigned].copy(),
+        rows[:n_rows].copy(),
+        assignments,
+        theta,
+    )

@@ -49,6 +49,9 @@ class SceneUpdate:
     """Earlier tokens whose context changed (rejuvenation, growth), as global token indices (int64)."""
     reassigned_contexts: np.ndarray
     """Their new contexts (int32)."""
+    previous_contexts: np.ndarray
+    """Their contexts before the update (int32): with ``rng_state_before``, what
+    :meth:`IncrementalLDA.undo_scene` needs to take the update back."""
     changed_counts: np.ndarray
     """One row (context, concept, new n_kw) per count entry that changed (int64, m × 3)."""
     contexts_before: int
@@ -57,6 +60,8 @@ class SceneUpdate:
     """Concepts first seen in this scene; they got ids |W|_before, |W|_before + 1, ..."""
     rng_state: dict[str, Any]
     """The model's random generator state after the update."""
+    rng_state_before: dict[str, Any]
+    """Its state before the update."""
     context_posterior: np.ndarray
     """θ of the scene after the update, (contexts_after,)."""
     growth_checked: bool
@@ -198,6 +203,7 @@ class IncrementalLDA:
         """
         ids, additions = self._scene_ids(words)
         state, h = self._state, self.hyperparameters
+        rng_state_before = dict(self._rng.bit_generator.state)
         contexts_before = state.n_contexts
         earlier = state.n_tokens
         first_doc = self._k_rule.growth_window(state, ids)
@@ -210,7 +216,7 @@ class IncrementalLDA:
             touched = np.concatenate([touched, window])
             previous = np.concatenate([previous, state.assignments[window]])
             self._grow_contexts(first_doc, online=True)
-        reassigned, contexts, changed_counts, assignments, theta = state.scene_changes(
+        reassigned, contexts, previous_contexts, changed_counts, assignments, theta = state.scene_changes(
             scene, touched, previous, h.k_rule.max_contexts + 1
         )
         return SceneUpdate(
@@ -219,14 +225,37 @@ class IncrementalLDA:
             assignments=assignments,
             reassigned_tokens=reassigned,
             reassigned_contexts=contexts,
+            previous_contexts=previous_contexts,
             changed_counts=changed_counts,
             contexts_before=contexts_before,
             contexts_after=state.n_contexts,
             vocabulary_additions=tuple(additions),
             rng_state=dict(self._rng.bit_generator.state),
+            rng_state_before=rng_state_before,
             context_posterior=theta,
             growth_checked=growth_checked,
         )
+
+    def undo_scene(self, update: SceneUpdate) -> None:
+        """Take back ``update``, the last :meth:`learn_scene` (its write to storage failed): the
+        model is then exactly as before it, assignments, counts, vocabulary and random state (a
+        retry of the scene learns it as the first try would have). Raises ValueError when
+        ``update`` is not the model's last change; the model must then be rebuilt from storage.
+        """
+        state = self._state
+        vocab_size = len(self._vocabulary) - len(update.vocabulary_additions)
+        if (
+            update.scene_index != state.n_documents - 1
+            or update.contexts_after != state.n_contexts
+            or tuple(self._vocabulary[vocab_size:]) != update.vocabulary_additions
+            or not np.array_equal(state.assignments[state.doc_offsets[-2] :], update.assignments)
+        ):
+            raise ValueError(f"scene {update.scene_index} is not the model's last change")
+        state.remove_last_scene(update.reassigned_tokens, update.previous_contexts, update.contexts_before, vocab_size)
+        for word in update.vocabulary_additions:
+            del self._index[word]
+        del self._vocabulary[vocab_size:]
+        self._rng.bit_generator.state = update.rng_state_before
 
     def _grow_contexts(self, first_doc: int, online: bool) -> None:
         """Algorithm 2's inner loop on scenes ``first_doc:`` (all of them in batch, the window

@@ -434,16 +434,47 @@ class LDAState:
 
     def scene_changes(
         self, scene: int, touched: np.ndarray, previous: np.ndarray, k_capacity: int
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """What the online update of the last ``scene`` changed, given the earlier tokens it may
         have moved (``touched``) and their contexts before (``previous``; a token listed twice
-        counts with its first entry): the moved tokens (ascending) and their contexts, the
+        counts with its first entry): the moved tokens (ascending), their contexts now and before, the
         changed n_kw entries as (context, concept, count) rows ordered by concept × ``k_capacity``
         + context, the scene's contexts and its θ (``kernels.scene_changes``)."""
         return kernels.scene_changes(
             touched, previous, scene, self._offsets, self._words, self._z, self._n_wk, self._n_dk,
             self.n_contexts, self.alpha, k_capacity,
         )  # fmt: skip
+
+    def remove_last_scene(
+        self, moved: np.ndarray, contexts_before: np.ndarray, n_contexts: int, vocab_size: int
+    ) -> None:
+        """Take the last scene's online update back out (:meth:`add_scene_online`, then any growth):
+        the earlier tokens ``moved`` return to ``contexts_before``, the scene leaves the corpus and
+        the counts, and the contexts and concepts it opened close, back to ``n_contexts`` and
+        ``vocab_size``. The counts are then those of the state before the update, entry for entry
+        (``count_kernels.remove_scene``). Raises ValueError when the arguments cannot describe the
+        last update (checked first: nothing changed) or what is left is not a state before it (a
+        context or concept to close still holds tokens): then only a reload restores the state."""
+        if self.n_documents == 0 or not (1 <= n_contexts <= self.n_contexts) or not 0 <= vocab_size <= self.vocab_size:
+            raise ValueError("not the last online update of this state")
+        if moved.shape != contexts_before.shape or (
+            moved.size and (moved.min() < 0 or moved.max() >= self._offsets[self.n_documents - 1])
+        ):
+            raise ValueError("the moved tokens are not earlier tokens of this state")
+        if contexts_before.size and contexts_before.max() >= n_contexts:
+            raise ValueError("a moved token's context before is not an open context")
+        scene = self.n_documents - 1
+        count_kernels.remove_scene(
+            moved, contexts_before, scene, self._offsets, self._words, self._z, self._token_scene,
+            self._n_wk, self._n_k, self._n_dk,
+        )  # fmt: skip
+        self.n_documents = scene
+        self.n_tokens = int(self._offsets[scene])
+        while self.n_contexts > n_contexts:
+            self.remove_last_context()
+        if self._n_wk[vocab_size : self.vocab_size].any():
+            raise ValueError("a concept the update added still has tokens")
+        self.vocab_size = vocab_size
 
     def reassign(self, tokens: np.ndarray, contexts: np.ndarray) -> None:
         """Set the contexts of assigned ``tokens`` to ``contexts``, keeping the counts consistent."""

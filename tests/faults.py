@@ -477,17 +477,32 @@ class TcpProxy:
     a Go server binary, which no registry this machine reaches packages (PyPI has
     only clients of it: ``toxiproxy-python``, ``chaostoolkit-toxiproxy``; Debian has
     no ``toxiproxy`` package), and no maintained pure-Python fault proxy is in the
-    package lists. A network namespace cuts a real link, and docs/scaling.md's drill
-    with one found what this proxy cannot show (a backend whose last answer went
-    unacknowledged: the kernel here acknowledges everything), but it needs root,
-    veth pairs and a PostgreSQL that listens beyond loopback: not for every test run.
+    package lists. A network namespace cuts a real link (tests/netns.py), which shows
+    what this proxy cannot (a backend whose last answer went unacknowledged: the
+    proxy's kernel acknowledges everything); there this class is also the relay that
+    stands in for PostgreSQL on the link (``listen_host``, ``like_postgres``).
     """
 
-    def __init__(self, target_port: int = 5432, target_host: str = "127.0.0.1") -> None:
+    def __init__(
+        self,
+        target_port: int = 5432,
+        target_host: str = "127.0.0.1",
+        *,
+        listen_host: str = "127.0.0.1",
+        listen_port: int = 0,
+        like_postgres: bool = False,
+    ) -> None:
+        """``like_postgres``: the accepted connections get the keepalive and ``TCP_USER_TIMEOUT``
+        settings the service asks of PostgreSQL's side of every connection
+        (``storage.database.POSTGRES_SESSION_OPTIONS``), so that a relay standing in for PostgreSQL
+        on a real link (tests/netns.py) notices a vanished client as PostgreSQL would, and ends its
+        session by closing the upstream connection."""
         self.target = (target_host, target_port)
+        self.listen_host = listen_host
+        self._like_postgres = like_postgres
         self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        self._listener.bind(("127.0.0.1", 0))
+        self._listener.bind((listen_host, listen_port))
         self._listener.listen(128)
         self._listener.settimeout(0.2)
         self.port = int(self._listener.getsockname()[1])
@@ -551,7 +566,7 @@ class TcpProxy:
         """``postgres_url`` with its host and port replaced by the proxy's."""
         from sqlalchemy.engine import make_url
 
-        return make_url(postgres_url).set(host="127.0.0.1", port=self.port).render_as_string(hide_password=False)
+        return make_url(postgres_url).set(host=self.listen_host, port=self.port).render_as_string(hide_password=False)
 
     # -- the threads
     def _accept_loop(self) -> None:
@@ -563,6 +578,8 @@ class TcpProxy:
             except OSError:
                 return
             self.accepted += 1
+            if self._like_postgres:
+                _postgres_socket_options(client)
             mode = self._mode
             if mode == "refuse":
                 _close(client)
@@ -633,6 +650,16 @@ class TcpProxy:
             with self._lock:
                 self._held.discard(client)
             _close(client)
+
+
+def _postgres_socket_options(sock: socket.socket) -> None:
+    """PostgreSQL's side of a connection as the service configures it (``tcp_keepalives_idle=5``,
+    ``_interval=2``, ``_count=2``, ``tcp_user_timeout=5000``: storage/database.py)."""
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_KEEPIDLE, 5)
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_KEEPINTVL, 2)
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_KEEPCNT, 2)
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_USER_TIMEOUT, 5_000)
 
 
 def _close(sock: socket.socket) -> None:

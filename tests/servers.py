@@ -56,12 +56,19 @@ class ServerStartError(RuntimeError):
 class ServerProcess:
     """One ``contextweb serve`` process (and its workers) on ``127.0.0.1:port``."""
 
-    def __init__(self, process: subprocess.Popen[bytes], port: int, log_path: Path, command: list[str]) -> None:
+    def __init__(
+        self,
+        process: subprocess.Popen[bytes],
+        port: int,
+        log_path: Path,
+        command: list[str],
+        base_url: str | None = None,
+    ) -> None:
         self.process = process
         self.port = port
         self.log_path = log_path
         self.command = command
-        self.base_url = f"http://127.0.0.1:{port}"
+        self.base_url = base_url or f"http://127.0.0.1:{port}"
 
     @property
     def pid(self) -> int:
@@ -165,10 +172,14 @@ def start_server(
     log_level: str = "warning",
     ready_seconds: float = STARTUP_SECONDS,
     name: str = "server",
+    command_prefix: Sequence[str] = (),
+    base_url: str | None = None,
 ) -> ServerProcess:
     """Migrate, start ``python -m app.cli serve [args]`` on ``port`` (a free one by default) and wait for ``/readyz``.
 
-    ``env`` adds or overrides variables (``CONTEXTWEB_HOST``…). The log goes to
+    ``env`` adds or overrides variables (``CONTEXTWEB_HOST``…). ``command_prefix`` runs the
+    command through another (``ip netns exec NAME``: tests/netns.py), and ``base_url`` is where
+    the server is reached from here when that is not its own loopback port. The log goes to
     ``log_dir/<name>-<port>.log`` (appended: a restart on the same port adds to it).
     Raises :class:`ServerStartError` (with the log's tail) when the server exits or is
     not ready in time; the process is then stopped.
@@ -176,7 +187,7 @@ def start_server(
     migrate(database_url)
     port = port or free_port()
     log_path = log_dir / f"{name}-{port}.log"
-    command = [sys.executable, "-m", "app.cli", "serve", "--log-level", log_level, *args]
+    command = [*command_prefix, sys.executable, "-m", "app.cli", "serve", "--log-level", log_level, *args]
     with log_path.open("ab") as log:
         process = subprocess.Popen(
             command,
@@ -186,7 +197,7 @@ def start_server(
             stderr=subprocess.STDOUT,
             start_new_session=True,
         )
-    server = ServerProcess(process, port, log_path, command)
+    server = ServerProcess(process, port, log_path, command, base_url)
     try:
         server.wait_ready(ready_seconds)
     except BaseException:

@@ -13,6 +13,7 @@ database's constraints refuses (:func:`is_write_conflict`) a 503 ``model_unavail
 
 from __future__ import annotations
 
+import logging
 import sqlite3
 from collections.abc import Sequence
 from typing import Any
@@ -38,6 +39,8 @@ from app.schemas.common import PATTERN_MEANINGS, UNION_TAGS, ErrorRead
 from core.errors import InvalidInputError
 from storage.database import LOCK_NOT_AVAILABLE
 from storage.unit_of_work import commit_outcome_unknown, deadline_that_passed
+
+logger = logging.getLogger("contextweb")
 
 
 class ContextwebError(Exception):
@@ -246,6 +249,23 @@ class ModelUnavailable(ServiceUnavailable):
         super().__init__(f"model {model_id!r} is unavailable: {reason}", retry_after)
 
 
+class StoredDataDamaged(ContextwebError):
+    """Stored bytes the server cannot read (a damaged answer blob, a corrupt database page): not the
+    client's fault and not transient, so neither a 4xx nor a 503 to retry. ``contextweb models
+    check`` names the damage (docs/operations.md, "Damaged storage")."""
+
+    error = "stored_data_damaged"
+    status_code = 500
+
+
+class UnexpectedError(ContextwebError):
+    """An error no route expected (a bug): answered in the documented shape, logged with its traceback
+    (app/middleware.py ``UnexpectedErrors``)."""
+
+    error = "internal_error"
+    status_code = 500
+
+
 class TooManyRequests(ContextwebError):
     """A 429 the client should retry after ``retry_after`` seconds (app/admission.py)."""
 
@@ -408,9 +428,38 @@ def storage_error(exc: BaseException) -> ServiceUnavailable:
     return StorageUnavailable(storage_failure_reason(exc), outcome_unknown=commit_outcome_unknown(exc))
 
 
+def is_storage_damage(exc: BaseException) -> bool:
+    """The database reports its own stored data damaged: SQLite's ``SQLITE_CORRUPT`` or
+    ``SQLITE_NOTADB`` ("database disk image is malformed"), PostgreSQL's class XX001/XX002
+    (``data_corrupted``, ``index_corrupted``)."""
+    original = getattr(exc, "orig", None)
+    if original is None:
+        return False
+    sqlite_code = getattr(original, "sqlite_errorcode", None)
+    if sqlite_code is not None:
+        return sqlite_code & 0xFF in (
+            11,
+            26,
+        )  # SQLITE_CORRUPT, SQLITE_NOTADB (extended codes keep them in the low byte)
+    return getattr(original, "sqlstate", None) in ("XX001", "XX002")
+
+
+def storage_damage(exc: BaseException, what: str) -> StoredDataDamaged:
+    """The 500 of :func:`is_storage_damage`, naming ``what`` was being read."""
+    return StoredDataDamaged(
+        f"the database reports {what} damaged ({storage_failure_reason(exc)}); "
+        "`contextweb models check` names the models it reaches, and the database needs its backup or repair"
+    )
+
+
 async def _storage_error(_request: Request, exc: Exception) -> JSONResponse:
     """A database failure that reached a route: a 503 to retry, never a bare 500 (app/deps.py has
-    already made sure no memory leads the database)."""
+    already made sure no memory leads the database); damage the database reports in its own data,
+    a 500 ``stored_data_damaged`` (retrying reads the same pages)."""
+    if is_storage_damage(exc):
+        logger.error("%s", storage_failure_reason(exc))
+        damaged = storage_damage(exc, "what this request read")
+        return error_response(damaged.error, damaged.message, damaged.status_code)
     if not is_storage_failure(exc):
         raise exc
     error = storage_error(exc)

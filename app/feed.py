@@ -50,6 +50,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.schemas.stream import ContextDiscoveredEvent, ModelFittedEvent, SceneEvent
 from app.stream import CLOSE_NORMAL, StreamHub, Subscriber
+from storage.compression import DamagedAnswerError, decompress_answer
 from storage.repositories import feed as feed_repository
 from storage.repositories.feed import ModelMark
 
@@ -296,11 +297,19 @@ class SceneFeed:
         events: list[dict[str, Any]] = []
         while True:
             rows = feed_repository.scenes_after(session, model_id, cursor.next_scene_id - 1, SCENES_PER_QUERY)
-            for scene_id, answer in rows:
+            for scene_id, stored in rows:
                 if scene_id != cursor.next_scene_id:
                     self._note_gap(model_id, cursor)
                     return events
-                events.extend(_events_of_answer(model_id, json.loads(answer)))
+                try:
+                    events.extend(_events_of_answer(model_id, json.loads(decompress_answer(stored))))
+                except DamagedAnswerError as error:  # it cannot be sent; the stream goes on after it
+                    logger.error(
+                        "model %s: scene %d's stored answer is damaged (%s); its stream skips it",
+                        model_id,
+                        scene_id,
+                        error,
+                    )
                 cursor.next_scene_id += 1
             cursor.gap_since = None
             if len(rows) < SCENES_PER_QUERY:

@@ -30,7 +30,7 @@ from app.auth import close_revoked_streams
 from app.errors import InvalidInput, ModelUnavailable, StorageUnavailable, add_exception_handlers, error_responses
 from app.feed import SceneFeed
 from app.metrics import ModelMetrics
-from app.middleware import RequestBodyLimits
+from app.middleware import RequestBodyLimits, UnexpectedErrors
 from app.registry import ModelRegistry
 from app.routers import contexts, health, keys, models, plans, scenes, stream, training
 from app.services.limits import VocabularyLimits
@@ -87,6 +87,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
     )
     add_exception_handlers(app)
+    app.add_middleware(UnexpectedErrors)  # innermost: the others see an ordinary 500
     app.add_middleware(RefuseBusyWrites)  # inside the body limits: the body it drops is counted and timed by them
     app.add_middleware(
         RequestBodyLimits,

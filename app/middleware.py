@@ -1,4 +1,9 @@
-"""ASGI middleware: the request body's limits.
+"""ASGI middleware: the request body's limits, and the answer to an error no route expected.
+
+:class:`UnexpectedErrors` answers an exception that no handler took (a bug, or damage the code
+did not foresee) as a 500 ``internal_error`` in the documented error shape, logs its traceback,
+and keeps the connection: without it Starlette answers ``text/plain`` and re-raises, and uvicorn
+then closes the keep-alive connection, so the client's next request on it fails too.
 
 :class:`RequestBodyLimits` reads every HTTP request body before the routes see it
 and answers in the documented error shape (``field: "body"``) when it is
@@ -26,12 +31,15 @@ from __future__ import annotations
 import email.message
 import functools
 import json
+import logging
 from itertools import accumulate
 
 import anyio
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from app.errors import ContextwebError, InvalidInput, PayloadTooLarge, RequestTimeout, error_response
+from app.errors import ContextwebError, InvalidInput, PayloadTooLarge, RequestTimeout, UnexpectedError, error_response
+
+logger = logging.getLogger("contextweb")
 
 #: Deepest nesting of arrays and objects a JSON body may have. The deepest request
 #: (a raw scene's interaction points) nests 10 levels; 32 leaves room and keeps every
@@ -184,3 +192,39 @@ async def _refuse(error: ContextwebError, scope: Scope, receive: Receive, send: 
     headers = {"Connection": "close"} if close else None
     response = error_response(error.error, error.message, error.status_code, error.field, headers=headers)
     await response(scope, receive, send)
+
+
+class UnexpectedErrors:
+    """A 500 ``internal_error`` JSON answer for an exception no handler took (module docstring).
+
+    Innermost of the middlewares (just outside FastAPI's exception handlers), so that the others
+    (the metrics, the body limits) see an ordinary 500 response. An exception raised after the
+    response began cannot be answered: it is re-raised, and the server ends that connection.
+    """
+
+    def __init__(self, app: ASGIApp) -> None:
+        self.app = app
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        started = False
+
+        async def send_watched(message: Message) -> None:
+            nonlocal started
+            started = started or message["type"] == "http.response.start"
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_watched)
+        except Exception as error:
+            if started:
+                raise
+            logger.exception("%s %s: an unexpected error", scope.get("method"), scope.get("path"))
+            unexpected = UnexpectedError(
+                f"an unexpected error ({type(error).__name__}); it is logged with its traceback, and retrying "
+                "may meet it again"
+            )
+            response = error_response(unexpected.error, unexpected.message, unexpected.status_code)
+            await response(scope, receive, send)

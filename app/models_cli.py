@@ -2,7 +2,10 @@
 
 ``check`` prints one line per model, ``<id> <name>: ok`` or the problems indented
 below it; it exits 0 when every model checked is sound, 1 when any has a problem
-and 2 for an unknown ID. ``repair`` rebuilds a model's counts from its scenes and
+and 2 for an unknown ID. ``ok`` means the storage invariants hold, every stored answer and
+kept token batch reads back, and a server's own load accepts the model (docs/operations.md,
+"Damaged storage"); a model the database cannot read is a problem of its own, not the end of
+the check. ``repair`` rebuilds a model's counts from its scenes and
 token assignments (storage.repositories.consistency), prints what changed, checks
 the model again and exits 0 when it is sound afterwards. Both read the database
 of ``CONTEXTWEB_DATABASE_URL`` (the server's), which must be at the head revision (else exit 75,
@@ -18,12 +21,16 @@ import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session, sessionmaker
 
+from app.errors import is_storage_damage, is_storage_failure, storage_failure_reason
+from app.registry import load_runtime
 from app.settings import Settings
 from storage.database import snapshot
 from storage.migrations import sessions_at_head
 from storage.repositories import consistency
+from storage.repositories import models as model_repository
 from storage.unit_of_work import unit_of_work
 
 SOUND = 0
@@ -49,7 +56,7 @@ def _session_makers() -> Iterator[tuple[sessionmaker[Session], sessionmaker[Sess
 
 
 def _model_name(session: Session, model_id: str) -> str | None:
-    return dict(consistency.stored_models(session)).get(model_id)
+    return dict(model_repository.stored_models(session)).get(model_id)
 
 
 def _print_result(model_id: str, name: str, problems: list[consistency.Problem]) -> None:
@@ -62,14 +69,16 @@ def _print_result(model_id: str, name: str, problems: list[consistency.Problem])
     if all(problem.repairable for problem in problems):
         print(f"  (all repairable: contextweb models repair {model_id})")
     else:
-        print("  (not repairable from the rows: the stored scenes, tokens, words or random state are damaged)")
+        print(
+            "  (not repairable from the rows: what is damaged is stored as it was sent, not derived; restore a backup)"
+        )
 
 
 def run_check(args: argparse.Namespace) -> int:
     """Check one model or all; 0 when all are sound, 1 when any has a problem, 2 for an unknown ID."""
     with _session_makers() as (read, _write):
         with snapshot(read) as session:
-            models = consistency.stored_models(session)
+            models = model_repository.stored_models(session)
         if args.model_id is not None:
             models = [(model_id, name) for model_id, name in models if model_id == args.model_id]
             if not models:
@@ -77,8 +86,7 @@ def run_check(args: argparse.Namespace) -> int:
                 return UNKNOWN_MODEL
         exit_code = SOUND
         for model_id, name in models:
-            with snapshot(read) as session:
-                problems = consistency.find_problems(session, model_id)
+            problems = _problems(read, model_id)
             _print_result(model_id, name, problems)
             if problems:
                 exit_code = PROBLEMS
@@ -104,13 +112,53 @@ def run_repair(args: argparse.Namespace) -> int:
             for problem in error.problems:
                 print(f"  {problem}")
             return PROBLEMS
+        except Exception as error:
+            if is_storage_failure(error) and not is_storage_damage(error):
+                raise
+            print(f"{model_id} {name}: not repaired, nothing changed; its rows cannot be read: {_reason(error)}")
+            return PROBLEMS
         if changes:
             print(f"{model_id} {name}: repaired")
             for change in changes:
                 print(f"  {change}")
         else:
             print(f"{model_id} {name}: nothing to repair")
-        with snapshot(read) as session:
-            problems = consistency.find_problems(session, model_id)
+        problems = _problems(read, model_id)
     _print_result(model_id, name, problems)
     return PROBLEMS if problems else SOUND
+
+
+def _problems(read: sessionmaker[Session], model_id: str) -> list[consistency.Problem]:
+    """The model's problems in one snapshot: the storage invariants, then, if they all hold, whether
+    the server's own load accepts it (its stored vocabulary, hyperparameters, training objects and
+    fit), so that ``ok`` means a server would serve it. A model the database cannot read at all
+    (a damaged page) is one problem, and the other models are still checked."""
+    try:
+        with snapshot(read) as session:
+            problems = consistency.find_problems(session, model_id)
+            return problems or _load_problems(session, model_id)
+    except Exception as error:
+        if is_storage_failure(error) and not is_storage_damage(error):
+            raise  # the database is not answering: no model can be checked
+        return [consistency.Problem(f"cannot be read: {_reason(error)}", repairable=False)]
+
+
+def _load_problems(session: Session, model_id: str) -> list[consistency.Problem]:
+    row = model_repository.get_model(session, model_id)
+    if row is None:
+        return []
+    try:
+        load_runtime(session, row)
+    except Exception as error:
+        if is_storage_failure(error) and not is_storage_damage(error):
+            raise
+        return [consistency.Problem(f"a server cannot load it: {_reason(error)}", repairable=False)]
+    return []
+
+
+def _reason(error: BaseException) -> str:
+    if isinstance(error, DBAPIError):
+        return storage_failure_reason(error)
+    field_name = getattr(error, "field", None)
+    where = f" ({field_name})" if field_name else ""
+    return f"{type(error).__name__}{where}: {getattr(error, 'problem', None) or error}"

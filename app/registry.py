@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 from sqlalchemy import func, select
+from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session, sessionmaker
 
 from app.errors import (
@@ -466,7 +467,8 @@ class ModelRuntime:
     seed: int
     sigma: float
     created_at: datetime
-    hyperparameters: dict[str, Any]
+    hyperparameters: dict[str, Any] | None
+    """Nested (:func:`stored_hyperparameters`); None for a stand-in whose stored ones cannot be read."""
     writer: ModelWriter = field(repr=False)
     vocabulary_limits: VocabularyLimits = field(default_factory=VocabularyLimits.defaults)
     """How far scenes may grow the vocabulary: the registry's, set when the model enters it."""
@@ -487,15 +489,31 @@ class ModelRuntime:
         )
 
     @classmethod
-    def unloadable(cls, row: Model, reason: str, failed_version: int | None) -> ModelRuntime:
-        """The stand-in of a stored model whose state failed its load: listed, answering 503 with ``reason``."""
+    def unloadable(
+        cls, row: Model | model_repository.ModelHeader, reason: str, failed_version: int | None
+    ) -> ModelRuntime:
+        """The stand-in of a stored model whose state failed its load (or whose row's JSON cannot
+        be decoded: a header of its other columns): listed, answering 503 with ``reason``."""
         try:
-            vocabulary = Vocabulary.from_dict(row.vocabulary)
+            vocabulary = Vocabulary.from_dict(row.vocabulary)  # type: ignore[union-attr]
         except Exception:  # noqa: BLE001 - a corrupt vocabulary is one more reason the model cannot load
             vocabulary = Vocabulary(nouns=("unknown",), adjective_pairs=(), verbs=())
+        hyperparameters: dict[str, Any] | None
+        try:
+            hyperparameters = stored_hyperparameters(row)  # type: ignore[arg-type]
+        except Exception:  # noqa: BLE001 - as above: listed without them
+            hyperparameters = None
         fitted = FittedPerception(Perception(vocabulary), fitted_at=row.fitted_at)
         writer = ModelWriter(row.id, fitted, IncrementalLDA(), [], 0, unavailable=reason, failed_version=failed_version)
-        return cls.from_row(row, writer)
+        return cls(
+            id=row.id,
+            name=row.name,
+            seed=row.seed,
+            sigma=row.sigma,
+            created_at=row.created_at,
+            hyperparameters=hyperparameters,
+            writer=writer,
+        )
 
     @property
     def lock(self) -> threading.Lock:
@@ -799,7 +817,7 @@ class ModelRegistry:
         damaged one ("846 stored, 848 after catching up": a ``--workers 2`` worker restarted under
         load, 2026-12-07; tests/test_runtime_processes.py)."""
         with self._snapshot() as session:
-            model_ids = [row.id for row in model_repository.list_models(session)]
+            model_ids = [model_id for model_id, _ in model_repository.stored_models(session)]
         for model_id in model_ids:
             model = self._stored(model_id)
             if model is not None:  # else deleted since the list
@@ -811,7 +829,12 @@ class ModelRegistry:
         """The model as stored, read in one snapshot (unavailable if its state fails its check); None
         if there is no such model."""
         with self._snapshot() as session:
-            row = model_repository.get_model(session, model_id)
+            try:
+                row = model_repository.get_model(session, model_id)
+            except Exception as error:  # its stored JSON cannot be decoded (a damaged row)
+                if is_storage_failure(error):
+                    raise
+                return _unreadable(session, model_id, error)
             return None if row is None else _loaded_or_unavailable(session, row)
 
     def _snapshot(self) -> AbstractContextManager[Session]:
@@ -875,19 +898,24 @@ class ModelRegistry:
         try:
             with self._snapshot() as session:
                 version = lda_repository.stored_version(session, model.id)
-                row = None if version is None else model_repository.get_model(session, model.id)
-                if row is None or version is None:
+                if version is None:
                     self.forget(model)
                     raise ModelNotFound(model.id)
                 if not model.check_due(version):
                     raise ModelUnavailable(model.id, model.unavailable or "stored state inconsistent")
+                what = "its stored row cannot be read"
                 try:
-                    fresh = load_runtime(session, row)
+                    row = model_repository.get_model(session, model.id)  # its JSON may not decode
+                    what = "its stored state failed its check"
+                    fresh = None if row is None else load_runtime(session, row)
                 except Exception as error:
                     if is_storage_failure(error):
                         raise
-                    model.mark_unavailable(_inconsistency(model.id, error), failed_version=version)
+                    model.mark_unavailable(_inconsistency(model.id, error, what), failed_version=version)
                     raise ModelUnavailable(model.id, model.unavailable or "") from error
+                if fresh is None:
+                    self.forget(model)
+                    raise ModelNotFound(model.id)
         except (ModelUnavailable, ModelNotFound):
             raise
         except Exception as error:
@@ -934,17 +962,32 @@ def _loaded_or_unavailable(session: Session, row: Model) -> ModelRuntime:
         if is_storage_failure(error):
             raise
         reason = _inconsistency(row.id, error)
-        logger.error("%s", reason)
+        logger.error("model %s: %s", row.id, reason)
         return ModelRuntime.unloadable(row, reason, lda_repository.stored_version(session, row.id))
 
 
-def _inconsistency(model_id: str, error: BaseException) -> str:
-    detail = getattr(error, "problem", None) or str(error) or type(error).__name__
+def _unreadable(session: Session, model_id: str, error: BaseException) -> ModelRuntime | None:
+    """The stand-in of a model whose row cannot be read whole (its JSON is damaged), or None if it is gone."""
+    header = model_repository.get_model_header(session, model_id)
+    if header is None:
+        return None
+    reason = _inconsistency(model_id, error, what="its stored row cannot be read")
+    logger.error("model %s: %s", model_id, reason)
+    return ModelRuntime.unloadable(header, reason, lda_repository.stored_version(session, model_id))
+
+
+def _inconsistency(model_id: str, error: BaseException, what: str = "its stored state failed its check") -> str:
+    """Why a model cannot load, for its 503s and the listing: the problem (the database's own first
+    line for a database error, never its SQL), and the commands that tell what to do."""
+    if isinstance(error, DBAPIError):
+        detail = storage_failure_reason(error)
+    else:
+        detail = getattr(error, "problem", None) or str(error) or type(error).__name__
     field_name = getattr(error, "field", None)
     where = f" ({field_name})" if field_name else ""
     return (
-        f"its stored state failed its check{where}: {detail}; "
-        f"`contextweb models check {model_id}` reports it, `contextweb models repair {model_id}` rebuilds it"
+        f"{what}{where}: {detail}; `contextweb models check {model_id}` names the problem and "
+        f"whether `contextweb models repair {model_id}` can rebuild it"
     )
 
 

@@ -142,7 +142,9 @@ class Model(ResponseModel):
     name: str
     seed: int
     sigma: float | None = None
-    hyperparameters: dict[str, Any] = Field(description="Nested: priors, sampler, k_rule (docs/api.md).")
+    hyperparameters: dict[str, Any] | None = Field(
+        description="Nested: priors, sampler, k_rule (docs/api.md); null for an unavailable model whose stored ones cannot be read."
+    )
     vocabulary: dict[str, Any]
     context_count: int
     vocabulary_size: int

@@ -128,14 +128,24 @@ def compress_answer(answer: str) -> bytes:
     return bytes([_ANSWER_FORMAT_2]) + compressor.compress(answer.encode()) + compressor.flush()
 
 
+class DamagedAnswerError(ValueError):
+    """A stored answer that cannot be read back: its bytes were damaged after they were written."""
+
+
 def decompress_answer(stored: bytes) -> str:
-    """The answer exactly as it was acknowledged (byte for byte), in whichever format it was stored."""
+    """The answer exactly as it was acknowledged (byte for byte), in whichever format it was stored;
+    :class:`DamagedAnswerError` when the bytes are not a whole answer of a known format."""
     dictionary = _ANSWER_DICTIONARIES.get(stored[0]) if stored else None
     if dictionary is None:
-        raise ValueError(f"unknown stored answer format {stored[:1]!r}")
+        raise DamagedAnswerError(f"unknown stored answer format {stored[:1]!r}")
     decompressor = zlib.decompressobj(zdict=dictionary)
-    data = decompressor.decompress(stored[1:]) + decompressor.flush()
-    return data.decode()
+    try:
+        data = decompressor.decompress(stored[1:]) + decompressor.flush()
+        if not decompressor.eof:
+            raise DamagedAnswerError("the stored answer ends before its compressed stream does")
+        return data.decode()
+    except (zlib.error, UnicodeDecodeError) as error:
+        raise DamagedAnswerError(f"the stored answer cannot be decompressed ({error})") from error
 
 
 def pack_arrays(arrays: dict[str, np.ndarray]) -> bytes:

@@ -180,7 +180,8 @@ def test_an_idempotency_key_is_unique_per_model(engine: Engine) -> None:
         scene_repository.add_scene(session, "m", 3, idempotency_key="k", **row)
     read, _ = create_session_makers(engine)
     with read() as session:
-        assert scene_repository.find_by_idempotency_key(session, "m", "k") == (0, bytes(32), "{}")
+        stored = scene_repository.find_by_idempotency_key(session, "m", "k")
+        assert stored is not None and (stored.scene_id, stored.request_hash, stored.answer) == (0, bytes(32), "{}")
         assert scene_repository.find_by_idempotency_key(session, "m", "other") is None
         rows, total = scene_repository.page_scenes(session, "m", offset=1, limit=5)
     assert total == 3 and [scene.id for scene in rows] == [1, 2]

@@ -222,7 +222,9 @@ class ModelRead(ReadSchema):
     name: str
     seed: int
     sigma: float
-    hyperparameters: Hyperparameters
+    hyperparameters: Hyperparameters | None = Field(
+        description="null only for an unavailable model whose stored hyperparameters cannot be read."
+    )
     vocabulary: VocabularySchema
     context_count: int = Field(description="K, the number of contexts discovered so far.")
     vocabulary_size: int = Field(description="|W|: distinct concepts seen in scenes.")

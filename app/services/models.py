@@ -5,6 +5,7 @@ from __future__ import annotations
 import uuid
 from typing import NamedTuple
 
+from pydantic import ValidationError
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput
@@ -138,7 +139,7 @@ def model_read(model: ModelRuntime) -> ModelRead:
         name=model.name,
         seed=model.seed,
         sigma=model.sigma,
-        hyperparameters=HyperparametersSchema.model_validate(model.hyperparameters),
+        hyperparameters=_listed_hyperparameters(model),
         vocabulary=VocabularySchema.model_validate(model.vocabulary.to_dict()),
         context_count=summary.context_count,
         vocabulary_size=summary.vocabulary_size,
@@ -150,3 +151,17 @@ def model_read(model: ModelRuntime) -> ModelRead:
         concept_web_fitted=perception.concept_web is not None,
         created_at=model.created_at,
     )
+
+
+def _listed_hyperparameters(model: ModelRuntime) -> HyperparametersSchema | None:
+    """The model's hyperparameters as listed; None for an unavailable model whose stored ones are
+    missing or do not validate (its reason says why it cannot load), so that one damaged row does
+    not fail the listing of every model."""
+    if model.hyperparameters is None and model.unavailable is not None:
+        return None
+    try:
+        return HyperparametersSchema.model_validate(model.hyperparameters)
+    except ValidationError:
+        if model.unavailable is None:
+            raise
+        return None

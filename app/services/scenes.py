@@ -32,6 +32,7 @@ Then under the model's write lock, :func:`learn_scene`:
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -41,7 +42,7 @@ from functools import partial
 import numpy as np
 from sqlalchemy.orm import Session
 
-from app.errors import ContextwebError, InvalidInput, SceneNotFound
+from app.errors import ContextwebError, InvalidInput, SceneNotFound, StoredDataDamaged
 from app.metrics import ModelEvents
 from app.registry import ModelRuntime, jsonable
 from app.schemas.common import Page
@@ -61,6 +62,7 @@ from app.services.perception import (
 from core.context.incremental import SceneUpdate
 from core.errors import InvalidInputError
 from core.scene import SceneObject as CoreObject
+from storage.compression import DamagedAnswerError
 from storage.database import combined, pipelined
 from storage.repositories import contexts as context_repository
 from storage.repositories import feed as feed_repository
@@ -68,6 +70,8 @@ from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import scenes as scene_repository
 from storage.repositories.incremental_lda import LockedModel, SceneChanges, StoredCheckpoint
 from storage.unit_of_work import after_commit
+
+logger = logging.getLogger("contextweb")
 
 
 @dataclass(frozen=True)
@@ -188,7 +192,10 @@ def learn_scene(
             stored = scene_repository.find_by_idempotency_key(session, model.id, idempotency_key)
         if stored is not None:
             check_retry(idempotency_key, stored.request_hash, request_hash)
-            return stored.answer, True
+            try:
+                return stored.answer, True
+            except DamagedAnswerError as error:
+                raise _damaged_answer(model, stored.scene_id, error, keyed=True) from error
     analysis = prepared.analysis_for(model)
     words = _scene_words(analysis)
     check_vocabulary_growth(model, words)
@@ -232,10 +239,25 @@ def infer_scene(model: ModelRuntime, body: SceneCreate, session: Session | None 
 
 def get_scene(session: Session, model: ModelRuntime, scene_id: int) -> str:
     """The ``SceneRead`` JSON the scene was acknowledged with."""
-    row = scene_repository.get_scene(session, model.id, scene_id)
-    if row is None:
-        raise SceneNotFound(model.id, scene_id)
-    return row.answer
+    try:
+        row = scene_repository.get_scene(session, model.id, scene_id)
+        if row is None:
+            raise SceneNotFound(model.id, scene_id)
+        return row.answer
+    except DamagedAnswerError as error:
+        raise _damaged_answer(model, scene_id, error) from error
+
+
+def _damaged_answer(
+    model: ModelRuntime, scene_id: int, error: DamagedAnswerError, *, keyed: bool = False
+) -> StoredDataDamaged:
+    """The 500 of a stored answer that cannot be read back (logged: an operator must know)."""
+    stored = " (the scene was stored and learned under this Idempotency-Key)" if keyed else ""
+    logger.error("model %s: scene %d's stored answer is damaged: %s", model.id, scene_id, error)
+    return StoredDataDamaged(
+        f"scene {scene_id} of model {model.id!r}: its stored answer cannot be read ({error}){stored}; "
+        f"`contextweb models check {model.id}` reports the damaged answers"
+    )
 
 
 def scene_history(session: Session, model: ModelRuntime, *, offset: int, limit: int) -> Page[SceneSummary]:

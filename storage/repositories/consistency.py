@@ -28,9 +28,23 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sqlalchemy import ColumnElement, CursorResult, Result, Row, delete, func, select, text, update
+from sqlalchemy import (
+    ColumnElement,
+    CursorResult,
+    LargeBinary,
+    Result,
+    Row,
+    delete,
+    func,
+    select,
+    text,
+    type_coerce,
+    update,
+)
 from sqlalchemy.orm import Session
 
+from storage.compression import DamagedAnswerError, decompress_answer
+from storage.database import DriverStatements
 from storage.models import (
     ContextWordCount,
     IncrementalLdaCheckpoint,
@@ -52,6 +66,7 @@ from storage.repositories.incremental_lda import (
     load_checkpoint,
     replay_batches,
     save_checkpoint,
+    unpack_batch,
 )
 
 #: A row of any width, read by column name (``row.total``).
@@ -76,12 +91,6 @@ class UnrepairableModelError(Exception):
         self.problems = list(problems)
 
 
-def stored_models(session: Session) -> list[tuple[str, str]]:
-    """(id, name) of every stored model, in creation order."""
-    rows = session.execute(select(Model.id, Model.name).order_by(Model.created_at, Model.id)).all()
-    return [(model_id, name) for model_id, name in rows]
-
-
 def check_model(session: Session, model_id: str) -> list[str]:
     """Every problem of the stored model, one sentence each; empty when the model is sound."""
     return [problem.message for problem in find_problems(session, model_id)]
@@ -89,17 +98,20 @@ def check_model(session: Session, model_id: str) -> list[str]:
 
 def find_problems(session: Session, model_id: str) -> list[Problem]:
     """Every problem of the stored model, each marked repairable or not."""
-    model = session.execute(select(Model.hyperparameters).where(Model.id == model_id)).first()
-    if model is None:
+    if session.execute(select(Model.id).where(Model.id == model_id)).first() is None:
         return [Problem(f"model {model_id!r} is not stored", repairable=False)]
+    hyperparameters, problems = _model_json(session, model_id)
     state = _state_row(session, model_id)
     words = _id_range(session, Word.id, Word.model_id, model_id)
     scenes = _id_range(session, Scene.id, Scene.model_id, model_id)
-    tokens, problems = _read_tokens(session, model_id)
+    tokens, token_problems = _read_tokens(session, model_id)
     problems = [
+        *problems,
         *_dense_id_problems("word", "words", words),
         *_dense_id_problems("scene", "scenes", scenes),
-        *problems,
+        *token_problems,
+        *_kept_batch_problems(session, model_id),
+        *_answer_problems(session, model_id),
     ]
     if tokens is not None:
         problems += _token_problems(session, model_id, tokens, words.count)
@@ -107,10 +119,134 @@ def find_problems(session: Session, model_id: str) -> list[Problem]:
     if state is None:
         problems.append(Problem("incremental_lda_state has no row for the model", repairable=False))
     else:
-        k_rule = model.hyperparameters.get("k_rule") if isinstance(model.hyperparameters, dict) else None
+        k_rule = hyperparameters.get("k_rule") if isinstance(hyperparameters, dict) else None
         max_contexts = k_rule.get("max_contexts") if isinstance(k_rule, dict) else None
         problems += _state_problems(session, model_id, state, scenes.count, words.count, max_contexts, tokens)
     return problems
+
+
+def _model_json(session: Session, model_id: str) -> tuple[Any, list[Problem]]:
+    """The model row's hyperparameters, and a problem for each of its JSON columns that cannot be
+    decoded (a damaged row: SQLite stores JSON as text). Not repairable: they are what was asked."""
+    problems, hyperparameters = [], None
+    for column in (Model.hyperparameters, Model.vocabulary):
+        try:
+            value = session.execute(select(column).where(Model.id == model_id)).scalar_one()
+        except ValueError as error:  # json.JSONDecodeError, or a type's own refusal
+            problems.append(Problem(f"model.{column.key} cannot be read: {error}", repairable=False))
+            continue
+        if not isinstance(value, dict):
+            problems.append(Problem(f"model.{column.key} is not a JSON object", repairable=False))
+        elif column is Model.hyperparameters:
+            hyperparameters = value
+    return hyperparameters, problems
+
+
+#: Stored answers decoded at a time by :func:`_answer_problems`.
+ANSWERS_PER_READ = 2_000
+
+
+def _answer_problems(session: Session, model_id: str) -> list[Problem]:
+    """Every stored answer must decompress (``storage.compression.decompress_answer``): they are what
+    the scenes were acknowledged with, so a damaged one is not repairable (a replay of its key, a
+    ``GET`` of the scene and its stream event cannot be answered). Read in pages of
+    :data:`ANSWERS_PER_READ` by scene id, so that a model of a million scenes is never in memory."""
+    damaged: list[int] = []
+    first_error = ""
+    after = -1
+    while True:
+        rows = session.execute(
+            select(Scene.id, type_coerce(Scene.answer, LargeBinary))
+            .where(Scene.model_id == model_id, Scene.id > after)
+            .order_by(Scene.id)
+            .limit(ANSWERS_PER_READ)
+        ).all()
+        for scene_id, stored in rows:
+            try:
+                decompress_answer(bytes(stored))
+            except DamagedAnswerError as error:
+                damaged.append(int(scene_id))
+                first_error = first_error or str(error)
+        if len(rows) < ANSWERS_PER_READ:
+            break
+        after = int(rows[-1][0])
+    if not damaged:
+        return []
+    return [
+        Problem(
+            f"scene: {_count(len(damaged), 'stored answer')} cannot be read, first scene {damaged[0]} ({first_error}); "
+            "they are what the scenes were acknowledged with",
+            repairable=False,
+        )
+    ]
+
+
+def _kept_batch_problems(session: Session, model_id: str) -> list[Problem]:
+    """The batches a compacting checkpoint kept at or below its version (for a process up to one
+    interval behind to catch up from) must be readable and continue one another. They are not the
+    truth (the checkpoint holds their tokens), so repairing deletes them (:func:`_drop_kept_batches`)
+    and a process that far behind reloads instead."""
+    compacted = compacted_version(session, model_id)
+    if compacted == 0:
+        return []
+    try:
+        checkpoint = load_checkpoint(session, model_id)
+    except DamagedCheckpointError:
+        return []  # named by _read_tokens
+    if checkpoint is None:
+        return []
+    rows = DriverStatements(session).fetchall(_SELECT_KEPT_BATCHES, (model_id, compacted, checkpoint.version))
+    next_token: int | None = None
+    for version, scene_id, first_token, token_count, blob in rows:
+        try:
+            unpack_batch(int(version), scene_id, int(first_token), int(token_count), bytes(blob))
+        except DamagedBatchError as error:
+            return [Problem(f"{error} (a batch the checkpoint covers, kept for catching up)", repairable=True)]
+        if int(token_count) == 0:
+            continue
+        if next_token is not None and int(first_token) != next_token:
+            return [
+                Problem(
+                    f"token ids have a gap among the batches the checkpoint covers: token_batch at version "
+                    f"{int(version)} starts at token {int(first_token)}, the batch before it ends at {next_token}",
+                    repairable=True,
+                )
+            ]
+        next_token = int(first_token) + int(token_count)
+    if next_token is not None and next_token != checkpoint.token_count:
+        return [
+            Problem(
+                f"the batches the checkpoint covers end at token {next_token}, the checkpoint (version "
+                f"{checkpoint.version}) at {checkpoint.token_count}",
+                repairable=True,
+            )
+        ]
+    return []
+
+
+_SELECT_KEPT_BATCHES = (
+    "SELECT version, scene_id, first_token, token_count, packed FROM token_batch "
+    "WHERE model_id = ? AND version > ? AND version <= ? ORDER BY version"
+)
+
+
+def _drop_kept_batches(session: Session, model_id: str) -> list[str]:
+    """Delete the batches the checkpoint covers and mark them compacted (a process behind them reloads)."""
+    checkpoint_version = session.scalar(
+        select(IncrementalLdaCheckpoint.version).where(IncrementalLdaCheckpoint.model_id == model_id)
+    )
+    assert checkpoint_version is not None  # kept batches exist only beside a compacting checkpoint
+    deleted = _rowcount(
+        session.execute(
+            delete(TokenBatch).where(TokenBatch.model_id == model_id, TokenBatch.version <= checkpoint_version)
+        )
+    )
+    session.execute(
+        update(IncrementalLdaCheckpoint)
+        .where(IncrementalLdaCheckpoint.model_id == model_id)
+        .values(compacted_version=checkpoint_version)
+    )
+    return [f"token_batch: deleted the {_count(deleted, 'batch')} the checkpoint (version {checkpoint_version}) covers"]
 
 
 def repair_model(session: Session, model_id: str) -> list[str]:
@@ -140,7 +276,7 @@ def repair_model(session: Session, model_id: str) -> list[str]:
     assert state is not None  # a missing state row is unrepairable
     tokens, _ = _read_tokens(session, model_id)
     assert tokens is not None  # unreadable tokens are unrepairable
-    changes = []
+    changes = _drop_kept_batches(session, model_id) if _kept_batch_problems(session, model_id) else []
     largest_batch = session.scalar(select(func.max(TokenBatch.version)).where(TokenBatch.model_id == model_id))
     new_version = max(state.version, largest_batch or 0) + 1
     scene_count = _id_range(session, Scene.id, Scene.model_id, model_id).count
@@ -456,7 +592,9 @@ def _count(total: int, noun: str) -> str:
     """``1 entry``, ``2 entries``, ``3 tokens``."""
     if total == 1:
         return f"1 {noun}"
-    return f"{total} {noun[:-1]}ies" if noun.endswith("y") else f"{total} {noun}s"
+    if noun.endswith("y"):
+        return f"{total} {noun[:-1]}ies"
+    return f"{total} {noun}es" if noun.endswith(("ch", "s")) else f"{total} {noun}s"
 
 
 # The n_kw entries.

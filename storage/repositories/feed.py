@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from datetime import datetime
 from typing import NamedTuple
 
-from sqlalchemy import func, select
+from sqlalchemy import LargeBinary, func, select, type_coerce
 from sqlalchemy.orm import Session
 
 from storage.database import DriverStatements
@@ -34,15 +34,17 @@ def notify_change(session: Session, model_id: str) -> None:
         DriverStatements(session).execute(_NOTIFY, (model_id,))
 
 
-def scenes_after(session: Session, model_id: str, after_scene_id: int, limit: int) -> list[tuple[int, str]]:
-    """(scene id, stored ``SceneRead`` JSON) of the model's scenes with id > ``after_scene_id``, in id order."""
+def scenes_after(session: Session, model_id: str, after_scene_id: int, limit: int) -> list[tuple[int, bytes]]:
+    """(scene id, stored answer) of the model's scenes with id > ``after_scene_id``, in id order; the
+    answers as stored (``storage.compression.decompress_answer`` reads one), so that one damaged
+    answer is the caller's to skip, not an error of the whole page."""
     statement = (
-        select(Scene.id, Scene.answer)
+        select(Scene.id, type_coerce(Scene.answer, LargeBinary))
         .where(Scene.model_id == model_id, Scene.id > after_scene_id)
         .order_by(Scene.id)
         .limit(limit)
     )
-    return [(int(scene_id), answer) for scene_id, answer in session.execute(statement)]
+    return [(int(scene_id), bytes(stored)) for scene_id, stored in session.execute(statement)]
 
 
 class ModelMark(NamedTuple):

@@ -20,13 +20,13 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from sqlalchemy import insert, select
+from sqlalchemy import func, insert, select
 from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session
 
 from storage.compression import pack_arrays, pack_small_arrays, unpack_arrays, unpack_small_arrays
 from storage.database import LOCK_NOT_AVAILABLE, DriverStatements, QueuedRows, pipelined
-from storage.models import ContextWordCount, IncrementalLdaCheckpoint, IncrementalLdaState, Word, utc_now
+from storage.models import ContextWordCount, IncrementalLdaCheckpoint, IncrementalLdaState, TokenBatch, Word, utc_now
 from storage.repositories.contexts import submit_context_labels
 from storage.repositories.scenes import StoredAnswer, stored_answer, submit_find_by_idempotency_key
 
@@ -355,6 +355,14 @@ def load_start(session: Session, model_id: str) -> StoredStart:
     state = session.get(IncrementalLdaState, model_id)
     if state is None:
         raise LookupError(f"model {model_id!r} has no Incremental-LDA state")
+    above = session.scalar(
+        select(func.min(TokenBatch.version)).where(TokenBatch.model_id == model_id, TokenBatch.version > state.version)
+    )
+    if above is not None:  # every write stores its batch and its version together: one of them was damaged
+        raise DamagedBatchError(
+            f"token_batch holds rows above the model's version ({state.version}), the first at version {above}: "
+            "a writer ignored the model's lock, or the state row was restored behind them"
+        )
     words = session.execute(select(Word.name, Word.kind).where(Word.model_id == model_id).order_by(Word.id)).all()
     checkpoint = load_checkpoint(session, model_id)
     since, known = (0, 0) if checkpoint is None else (checkpoint.version, checkpoint.token_count)

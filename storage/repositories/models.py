@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from datetime import datetime
-from typing import Any
+from typing import Any, NamedTuple
 
 from sqlalchemy import delete, select, update
 from sqlalchemy.orm import Session
@@ -49,8 +49,31 @@ def find_by_idempotency_key(session: Session, idempotency_key: str) -> tuple[str
     return None if row is None else (row.id, None if row.request_hash is None else bytes(row.request_hash))
 
 
-def list_models(session: Session) -> Sequence[Model]:
-    return session.scalars(select(Model).order_by(Model.created_at, Model.id)).all()
+def stored_models(session: Session) -> list[tuple[str, str]]:
+    """(id, name) of every stored model, in creation order: no JSON column is decoded, so one model
+    whose stored JSON is damaged cannot stop the listing (a start, ``contextweb models check``)."""
+    rows = session.execute(select(Model.id, Model.name).order_by(Model.created_at, Model.id)).all()
+    return [(model_id, name) for model_id, name in rows]
+
+
+class ModelHeader(NamedTuple):
+    """A model row's columns without its JSON ones: what lists a model whose JSON cannot be decoded."""
+
+    id: str
+    name: str
+    seed: int
+    sigma: float
+    created_at: datetime
+    fitted_at: datetime | None
+
+
+def get_model_header(session: Session, model_id: str) -> ModelHeader | None:
+    row = session.execute(
+        select(Model.id, Model.name, Model.seed, Model.sigma, Model.created_at, Model.fitted_at).where(
+            Model.id == model_id
+        )
+    ).first()
+    return None if row is None else ModelHeader(*row)
 
 
 def delete_model(session: Session, model_id: str) -> None:

@@ -62,7 +62,13 @@ class StoredAnswer(NamedTuple):
 
     scene_id: int
     request_hash: bytes
-    answer: str
+    stored: bytes
+    """The answer as stored (``storage.compression``)."""
+
+    @property
+    def answer(self) -> str:
+        """The answer as acknowledged (:class:`storage.compression.DamagedAnswerError` if its bytes are damaged)."""
+        return decompress_answer(self.stored)
 
 
 def find_by_idempotency_key(session: Session, model_id: str, key: str) -> StoredAnswer | None:
@@ -83,7 +89,7 @@ def stored_answer(rows: Sequence[tuple[Any, ...]]) -> StoredAnswer | None:
     if not rows:
         return None
     scene_id, request_hash, answer_zlib = rows[0]
-    return StoredAnswer(scene_id, bytes(request_hash), decompress_answer(bytes(answer_zlib)))
+    return StoredAnswer(scene_id, bytes(request_hash), bytes(answer_zlib))
 
 
 _FIND_BY_KEY = "SELECT id, request_hash, answer_zlib FROM scene WHERE model_id = ? AND idempotency_key = ?"

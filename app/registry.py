@@ -490,10 +490,15 @@ class ModelRuntime:
 
     @classmethod
     def unloadable(
-        cls, row: Model | model_repository.ModelHeader, reason: str, failed_version: int | None
+        cls,
+        row: Model | model_repository.ModelHeader,
+        reason: str,
+        failed_version: int | None,
+        counts: tuple[int, int, int] | None = None,
     ) -> ModelRuntime:
         """The stand-in of a stored model whose state failed its load (or whose row's JSON cannot
-        be decoded: a header of its other columns): listed, answering 503 with ``reason``."""
+        be decoded: a header of its other columns): listed, answering 503 with ``reason``, with
+        the stored (contexts, scenes, words) ``counts`` when they could be read."""
         try:
             vocabulary = Vocabulary.from_dict(row.vocabulary)  # type: ignore[union-attr]
         except Exception:  # noqa: BLE001 - a corrupt vocabulary is one more reason the model cannot load
@@ -505,6 +510,8 @@ class ModelRuntime:
             hyperparameters = None
         fitted = FittedPerception(Perception(vocabulary), fitted_at=row.fitted_at)
         writer = ModelWriter(row.id, fitted, IncrementalLDA(), [], 0, unavailable=reason, failed_version=failed_version)
+        if counts is not None:  # listed with what is stored, not the stand-in's empty memory
+            writer.summary = ModelSummary(*counts)
         return cls(
             id=row.id,
             name=row.name,
@@ -963,7 +970,9 @@ def _loaded_or_unavailable(session: Session, row: Model) -> ModelRuntime:
             raise
         reason = _inconsistency(row.id, error)
         logger.error("model %s: %s", row.id, reason)
-        return ModelRuntime.unloadable(row, reason, lda_repository.stored_version(session, row.id))
+        return ModelRuntime.unloadable(
+            row, reason, lda_repository.stored_version(session, row.id), _stored_summary(session, row.id)
+        )
 
 
 def _unreadable(session: Session, model_id: str, error: BaseException) -> ModelRuntime | None:
@@ -973,7 +982,18 @@ def _unreadable(session: Session, model_id: str, error: BaseException) -> ModelR
         return None
     reason = _inconsistency(model_id, error, what="its stored row cannot be read")
     logger.error("model %s: %s", model_id, reason)
-    return ModelRuntime.unloadable(header, reason, lda_repository.stored_version(session, model_id))
+    return ModelRuntime.unloadable(
+        header, reason, lda_repository.stored_version(session, model_id), _stored_summary(session, model_id)
+    )
+
+
+def _stored_summary(session: Session, model_id: str) -> tuple[int, int, int] | None:
+    try:
+        return lda_repository.stored_summary(session, model_id)
+    except Exception as error:  # the state row itself may be what is damaged: listed without them
+        if is_storage_failure(error):
+            raise
+        return None
 
 
 def _inconsistency(model_id: str, error: BaseException, what: str = "its stored state failed its check") -> str:

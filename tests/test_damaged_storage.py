@@ -111,6 +111,7 @@ def test_hyperparameters_of_the_wrong_shape_leave_the_listing_and_the_other_mode
         listed = {model["id"]: model for model in listing.json()}
         assert listed[damaged]["status"] == "unavailable" and listed[damaged]["hyperparameters"] is None
         assert "alpha" in listed[damaged]["unavailable_reason"]
+        assert listed[damaged]["scene_count"] == 3, "listed with its stored scenes, not the stand-in's empty memory"
         assert listed[healthy]["status"] == "available" and listed[healthy]["hyperparameters"] is not None
         answer = client.get(f"/v1/models/{damaged}/contexts")
         assert answer.status_code == 503 and answer.json()["error"] == "model_unavailable"

@@ -723,7 +723,9 @@ def _rewrite_counts(
                 for (k, w), n in counted.items()
             ],
         )
-    rewritten = f"context_word_count: rewrote {_count(len(counted), 'entry')} from the tokens"
+    rewritten = f"context_word_count: rewrote {_count(len(counted), 'entry')} from the tokens (at the new version)"
+    if not differences:
+        rewritten += ", none of them changed"
     if differences:
         context, word, stored, assigned = differences[0]
         changes.append(

@@ -597,6 +597,20 @@ def stored_version(session: Session, model_id: str) -> int | None:
     return None if row is None else int(row[0])
 
 
+def stored_summary(session: Session, model_id: str) -> tuple[int, int, int] | None:
+    """(contexts, scenes, words) as the model's state and word rows say: what lists a model that
+    cannot load. None when it has no state row."""
+    row = session.execute(
+        select(IncrementalLdaState.context_count, IncrementalLdaState.scene_count).where(
+            IncrementalLdaState.model_id == model_id
+        )
+    ).first()
+    if row is None:
+        return None
+    words = session.scalar(select(func.count()).select_from(Word).where(Word.model_id == model_id)) or 0
+    return int(row.context_count), int(row.scene_count), int(words)
+
+
 def stored_versions(session: Session) -> dict[str, int]:
     """Every stored model's version, by id."""
     rows = session.execute(select(IncrementalLdaState.model_id, IncrementalLdaState.version)).all()

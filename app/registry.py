@@ -478,13 +478,19 @@ class ModelRuntime:
     @classmethod
     def from_row(cls, row: Model, writer: ModelWriter) -> ModelRuntime:
         """The runtime of the model stored as ``row``, its in-memory state held by ``writer``."""
+        return cls._of(row, writer, stored_hyperparameters(row))
+
+    @classmethod
+    def _of(
+        cls, row: Model | model_repository.ModelHeader, writer: ModelWriter, hyperparameters: dict[str, Any] | None
+    ) -> ModelRuntime:
         return cls(
             id=row.id,
             name=row.name,
             seed=row.seed,
             sigma=row.sigma,
             created_at=row.created_at,
-            hyperparameters=stored_hyperparameters(row),
+            hyperparameters=hyperparameters,
             writer=writer,
         )
 
@@ -512,15 +518,7 @@ class ModelRuntime:
         writer = ModelWriter(row.id, fitted, IncrementalLDA(), [], 0, unavailable=reason, failed_version=failed_version)
         if counts is not None:  # listed with what is stored, not the stand-in's empty memory
             writer.summary = ModelSummary(*counts)
-        return cls(
-            id=row.id,
-            name=row.name,
-            seed=row.seed,
-            sigma=row.sigma,
-            created_at=row.created_at,
-            hyperparameters=hyperparameters,
-            writer=writer,
-        )
+        return cls._of(row, writer, hyperparameters)
 
     @property
     def lock(self) -> threading.Lock:

@@ -124,6 +124,15 @@ def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> str:
 
 
 @pytest.fixture
+def cli_database(database_url: str, monkeypatch: pytest.MonkeyPatch) -> str:
+    """The test database as the CLI's ``CONTEXTWEB_DATABASE_URL``, with no other setting leaking in."""
+    for name in ("CONTEXTWEB_ENVIRONMENT", "CONTEXTWEB_WRITE_KEY", "CONTEXTWEB_READ_KEY"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("CONTEXTWEB_DATABASE_URL", database_url)
+    return database_url
+
+
+@pytest.fixture
 def engine(database_url: str) -> Iterator[Engine]:
     engine = create_database_engine(database_url)
     yield engine

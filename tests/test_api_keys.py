@@ -171,15 +171,6 @@ def test_a_revoked_key_is_refused_on_its_next_request_on_every_process(database_
         }
 
 
-@pytest.fixture
-def cli_database(database_url: str, monkeypatch: pytest.MonkeyPatch) -> str:
-    """The test database as the CLI's ``CONTEXTWEB_DATABASE_URL``, with no other setting leaking in."""
-    for name in ("CONTEXTWEB_ENVIRONMENT", "CONTEXTWEB_WRITE_KEY", "CONTEXTWEB_READ_KEY"):
-        monkeypatch.delenv(name, raising=False)
-    monkeypatch.setenv("CONTEXTWEB_DATABASE_URL", database_url)
-    return database_url
-
-
 def test_the_cli_creates_lists_and_revokes_keys(
     cli_database: str, secured: TestClient, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -58,14 +58,6 @@ def _check(model_id: str, capsys: pytest.CaptureFixture[str]) -> tuple[int, str]
     return code, capsys.readouterr().out
 
 
-@pytest.fixture
-def cli_database(database_url: str, monkeypatch: pytest.MonkeyPatch) -> str:
-    for name in ("CONTEXTWEB_ENVIRONMENT", "CONTEXTWEB_WRITE_KEY", "CONTEXTWEB_READ_KEY"):
-        monkeypatch.delenv(name, raising=False)
-    monkeypatch.setenv("CONTEXTWEB_DATABASE_URL", database_url)
-    return database_url
-
-
 def test_a_damaged_answer_is_a_clear_500_for_that_scene_and_check_names_it(
     cli_database: str, engine: Engine, capsys: pytest.CaptureFixture[str]
 ) -> None:

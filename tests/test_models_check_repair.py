@@ -346,15 +346,6 @@ def test_a_missing_state_row_is_unrepairable(engine: Engine, learned_model: str)
 # The command line.
 
 
-@pytest.fixture
-def cli_database(database_url: str, monkeypatch: pytest.MonkeyPatch) -> str:
-    """The test database as the CLI's ``CONTEXTWEB_DATABASE_URL``, with no other setting leaking in."""
-    for name in ("CONTEXTWEB_ENVIRONMENT", "CONTEXTWEB_WRITE_KEY", "CONTEXTWEB_READ_KEY"):
-        monkeypatch.delenv(name, raising=False)
-    monkeypatch.setenv("CONTEXTWEB_DATABASE_URL", database_url)
-    return database_url
-
-
 def test_models_check_prints_one_line_per_model_and_exits_by_soundness(
     cli_database: str, engine: Engine, client: TestClient, learned_model: str, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -66,9 +66,9 @@ REAL_LINK_ANSWER_DEADLINE = 15.0
 CUT_SECONDS = ANSWER_DEADLINE + 2.0
 #: On a real link: long enough for B to serve again after PostgreSQL ended A's stranded sessions
 #: (≈ 9 s at most by their keepalives, 5 s by ``tcp_user_timeout``; the lock wait is 10 s).
-REAL_LINK_CUT_SECONDS = 24.0
+REAL_LINK_CUT_SECONDS = 20.0
 #: B must acknowledge scenes sent this long after the cut began, before the restore.
-REAL_LINK_SERVED_AFTER = 14.0
+REAL_LINK_SERVED_AFTER = 12.0
 CLIENTS_PER_PROCESS = 2
 RECOVERY_SECONDS = 20.0
 CATCH_UP_SECONDS = 10.0

@@ -236,7 +236,9 @@ def model_write(
         if failed and not is_storage_busy(error):  # a lock held elsewhere says nothing of the database's health
             state.storage.record_failure(storage_failure_reason(error), unresponsive=is_unresponsive_database(error))
         if failed:
-            raise storage_error(error) from error
+            answer = storage_error(error)
+            answer.recorded = True  # counted above (a lock held elsewhere is not a failure of the database)
+            raise answer from error
         if is_write_conflict(error):
             logger.warning(
                 "model %s: a write conflicts with a stored row and stored nothing: %s",

@@ -208,6 +208,8 @@ class ServiceUnavailable(ContextwebError):
     def __init__(self, message: str, retry_after: int) -> None:
         super().__init__(message)
         self.retry_after = retry_after
+        self.recorded = False
+        """Whether the process's storage health has counted it (app/deps.py ``model_write`` does, for a write)."""
 
     def headers(self) -> dict[str, str]:
         return {"Retry-After": str(self.retry_after)}
@@ -219,6 +221,7 @@ class StorageUnavailable(ServiceUnavailable):
     error = "storage_unavailable"
 
     def __init__(self, reason: str, retry_after: int = 1, *, outcome_unknown: bool = False) -> None:
+        self.reason = reason
         outcome = (
             "the connection was lost after the commit was sent, so the database may have stored the write: "
             "retry a keyed write with the same Idempotency-Key to get its stored answer, and check before "
@@ -297,12 +300,13 @@ class RateLimited(TooManyRequests):
         super().__init__(f"more than {burst} writes at once or {rate:g} a second from this client", retry_after)
 
 
-class NotReady(ContextwebError):
+class NotReady(ServiceUnavailable):
+    """``/readyz``'s 503: a load balancer or orchestrator probes again (``Retry-After`` says when)."""
+
     error = "not_ready"
-    status_code = 503
 
     def __init__(self, reason: str) -> None:
-        super().__init__(reason)
+        super().__init__(reason, retry_after=1)
 
 
 def error_response(error: str, detail: str, status_code: int, field: str | None = None, **kwargs: Any) -> JSONResponse:
@@ -336,9 +340,19 @@ def field_name(location: Sequence[Any]) -> str:
     return name or "body"
 
 
-async def _contextweb_error(_request: Request, exc: Exception) -> JSONResponse:
+async def _contextweb_error(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, ContextwebError)
+    if isinstance(exc, StorageUnavailable) and not exc.recorded:
+        _record_storage_failure(request, exc.reason)
     return error_response(exc.error, exc.message, exc.status_code, exc.field, headers=exc.headers())
+
+
+def _record_storage_failure(request: Request, reason: str) -> None:
+    """A read's storage failure, counted in the process's storage health (``app.storage_health``:
+    readiness, and the log lines of a failure's start and end)."""
+    state = getattr(request.state, "contextweb", None)
+    if state is not None:
+        state.storage.record_failure(reason)
 
 
 async def _invalid_input(_request: Request, exc: Exception) -> JSONResponse:
@@ -452,7 +466,7 @@ def storage_damage(exc: BaseException, what: str) -> StoredDataDamaged:
     )
 
 
-async def _storage_error(_request: Request, exc: Exception) -> JSONResponse:
+async def _storage_error(request: Request, exc: Exception) -> JSONResponse:
     """A database failure that reached a route: a 503 to retry, never a bare 500 (app/deps.py has
     already made sure no memory leads the database); damage the database reports in its own data,
     a 500 ``stored_data_damaged`` (retrying reads the same pages)."""
@@ -463,6 +477,8 @@ async def _storage_error(_request: Request, exc: Exception) -> JSONResponse:
     if not is_storage_failure(exc):
         raise exc
     error = storage_error(exc)
+    if isinstance(error, StorageUnavailable):
+        _record_storage_failure(request, error.reason)
     return error_response(error.error, error.message, error.status_code, headers=error.headers())
 
 

@@ -13,11 +13,14 @@ request's successful write does, or a probe after :data:`FAILURE_MEMORY_SECONDS`
 
 from __future__ import annotations
 
+import logging
 import os
 import socket
 import threading
 import time
 from dataclasses import dataclass, field
+
+logger = logging.getLogger("contextweb")
 
 #: Seconds a successful probe answers for.
 PROBE_INTERVAL_SECONDS = 2.0
@@ -37,22 +40,46 @@ class StorageHealth:
     failed_at: float = 0.0
     probed_at: float = float("-inf")
     unresponsive_until: float = float("-inf")
+    failing_since: float = 0.0
+    """``time.monotonic()`` when the current failure began (for the log line of its end)."""
+    failures: int = 0
+    """Requests and probes that failed since then."""
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     def record_success(self) -> None:
         if self.failure is not None:
             with self._lock:
-                self.failure = None
+                self._recovered()
                 self.unresponsive_until = float("-inf")
 
     def record_failure(self, reason: str, *, unresponsive: bool = False) -> None:
-        """A write's storage failure; ``unresponsive``: the database did not answer in time at all
+        """A request's storage failure; ``unresponsive``: the database did not answer in time at all
         (its writes then fail fast for :data:`UNRESPONSIVE_BACKOFF_SECONDS`: :meth:`unresponsive`)."""
         with self._lock:
-            self.failure = reason
-            self.failed_at = time.monotonic()
+            self._failed(reason)
             if unresponsive:
                 self.unresponsive_until = self.failed_at + UNRESPONSIVE_BACKOFF_SECONDS
+
+    def _failed(self, reason: str) -> None:
+        """Under the lock. The log says when the database starts failing and when it answers again,
+        not every request's 503 (an outage under a fleet's load would be thousands of lines)."""
+        now = time.monotonic()
+        if self.failure is None:
+            self.failing_since, self.failures = now, 0
+            logger.warning("the database fails requests (%s): they answer 503 until it answers again", reason)
+        self.failure, self.failed_at = reason, now
+        self.failures += 1
+
+    def _recovered(self) -> None:
+        """Under the lock: the failure is over."""
+        if self.failure is not None:
+            logger.warning(
+                "the database answers again after %.1f s; %d requests and probes failed meanwhile, the last with: %s",
+                time.monotonic() - self.failing_since,
+                self.failures,
+                self.failure,
+            )
+        self.failure = None
 
     def unresponsive(self) -> str | None:
         """The failure of a write that found the database unresponsive a moment ago, or None.
@@ -71,6 +98,6 @@ class StorageHealth:
         with self._lock:
             self.probed_at = time.monotonic()
             if failure is not None:
-                self.failure, self.failed_at = failure, self.probed_at
+                self._failed(failure)
             elif self.failure is not None and self.probed_at - self.failed_at >= FAILURE_MEMORY_SECONDS:
-                self.failure = None
+                self._recovered()

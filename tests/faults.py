@@ -981,7 +981,7 @@ def wait_ready(base_url: str, seconds: float) -> tuple[int, str]:
 
 
 def readiness_problem(response: httpx.Response) -> str | None:
-    """None when ``response`` is the contract's not-ready answer: 503, JSON error with a reason."""
+    """None when ``response`` is the contract's not-ready answer: 503, JSON error with a reason, ``Retry-After``."""
     if response.status_code != 503:
         return f"/readyz answered {response.status_code}, not 503: {response.text[:200]}"
     try:
@@ -990,6 +990,8 @@ def readiness_problem(response: httpx.Response) -> str | None:
         return f"/readyz 503 without a JSON body: {response.text[:200]!r}"
     if not isinstance(body, dict) or not body.get("error") or not body.get("detail"):
         return f"/readyz 503 body without error and detail: {response.text[:200]}"
+    if not response.headers.get("retry-after"):
+        return f"/readyz 503 without Retry-After (every 503 carries one): {response.text[:200]}"
     return None
 
 

@@ -20,7 +20,8 @@ What must hold (issue 13): every attempt is a 201 or a 503 JSON error with
 every acknowledged answer is stored as sent; scene and token ids have no gaps;
 n_kw equals the stored assignments; a restarted server loads the model. And a
 write that failed after its scene was learned in memory took the scene back
-out of memory, without reloading the model (app/registry.py ``ModelWriter.undo``).
+out of memory, without reloading the model (app/registry.py ``ModelWriter.undo``), and the
+log says when the database began to fail requests and when it answered again.
 """
 
 from __future__ import annotations
@@ -127,6 +128,7 @@ def _run_fault(tmp_path: Path, database: Path, fault: Callable[[], AbstractConte
         log = server.log(tail=10_000_000)
         assert_nothing_lost_then_restart(url, server, model_id, clients, readiness, tmp_path)
     assert "its scene was taken back out of memory" in log, log[-3000:]
+    assert "the database fails requests" in log and "the database answers again after" in log, log[-3000:]
     assert "reloaded from the database" not in log and "is being reloaded" not in log, log[-3000:]
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import uuid
 from typing import NamedTuple
 
@@ -22,6 +23,8 @@ from storage.models import Model
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import models as model_repository
 from storage.unit_of_work import after_commit
+
+logger = logging.getLogger("contextweb")
 
 
 class CreatedModel(NamedTuple):
@@ -127,6 +130,9 @@ def delete_model(session: Session, registry: ModelRegistry, hub: StreamHub, mode
     def forget() -> None:
         registry.forget(model.writer)
         hub.close_model(model.id, CLOSE_NORMAL, "model deleted")
+        logger.info(
+            "model %s (%r, %d scenes) deleted; its streams were closed", model.id, model.name, model.summary.scene_count
+        )
 
     after_commit(session, forget)
 

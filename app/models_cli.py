@@ -117,13 +117,18 @@ def run_repair(args: argparse.Namespace) -> int:
                 raise
             print(f"{model_id} {name}: not repaired, nothing changed; its rows cannot be read: {_reason(error)}")
             return PROBLEMS
+        problems = _problems(read, model_id)
+        if not changes and problems:  # what only a server's load or a read found: nothing repair mends
+            print(f"{model_id} {name}: not repaired, nothing changed; these problems cannot be repaired from the rows:")
+            for found in problems:
+                print(f"  {found.message}")
+            return PROBLEMS
         if changes:
             print(f"{model_id} {name}: repaired")
             for change in changes:
                 print(f"  {change}")
         else:
             print(f"{model_id} {name}: nothing to repair")
-        problems = _problems(read, model_id)
     _print_result(model_id, name, problems)
     return PROBLEMS if problems else SOUND
 

@@ -474,6 +474,9 @@ class ModelRuntime:
     """How far scenes may grow the vocabulary: the registry's, set when the model enters it."""
     checkpoint_interval: int = DEFAULT_CHECKPOINT_INTERVAL
     """Every this-many scenes the model's checkpoint is rewritten (the registry's, as above)."""
+    vocabulary_known: bool = True
+    """False for a stand-in whose stored vocabulary cannot be read (its perception holds a placeholder):
+    the listing shows none."""
 
     @classmethod
     def from_row(cls, row: Model, writer: ModelWriter) -> ModelRuntime:
@@ -505,10 +508,11 @@ class ModelRuntime:
         """The stand-in of a stored model whose state failed its load (or whose row's JSON cannot
         be decoded: a header of its other columns): listed, answering 503 with ``reason``, with
         the stored (contexts, scenes, words) ``counts`` when they could be read."""
+        vocabulary_known = True
         try:
             vocabulary = Vocabulary.from_dict(row.vocabulary)  # type: ignore[union-attr]
         except Exception:  # noqa: BLE001 - a corrupt vocabulary is one more reason the model cannot load
-            vocabulary = Vocabulary(nouns=("unknown",), adjective_pairs=(), verbs=())
+            vocabulary, vocabulary_known = Vocabulary(nouns=("unknown",), adjective_pairs=(), verbs=()), False
         hyperparameters: dict[str, Any] | None
         try:
             hyperparameters = stored_hyperparameters(row)  # type: ignore[arg-type]
@@ -518,7 +522,7 @@ class ModelRuntime:
         writer = ModelWriter(row.id, fitted, IncrementalLDA(), [], 0, unavailable=reason, failed_version=failed_version)
         if counts is not None:  # listed with what is stored, not the stand-in's empty memory
             writer.summary = ModelSummary(*counts)
-        return cls._of(row, writer, hyperparameters)
+        return dataclasses.replace(cls._of(row, writer, hyperparameters), vocabulary_known=vocabulary_known)
 
     @property
     def lock(self) -> threading.Lock:
@@ -660,7 +664,7 @@ def load_runtime(session: Session, row: Model) -> ModelRuntime:
     stored = lda_repository.load_start(session, row.id)
     incremental_lda = stored_incremental_lda(stored, stored_hyperparameters(row))
     vectors, behaviours, training_count = training_effects(session, row.id)
-    fitted = FittedPerception.from_row(row, Vocabulary.from_dict(row.vocabulary), vectors, behaviours)
+    fitted = FittedPerception.from_row(row, _stored_vocabulary(row), vectors, behaviours)
     writer = ModelWriter(row.id, fitted, incremental_lda, stored.word_kinds, training_count, version=stored.version)
     return ModelRuntime.from_row(row, writer)
 
@@ -971,6 +975,16 @@ def _loaded_or_unavailable(session: Session, row: Model) -> ModelRuntime:
         return ModelRuntime.unloadable(
             row, reason, lda_repository.stored_version(session, row.id), _stored_summary(session, row.id)
         )
+
+
+def _stored_vocabulary(row: Model) -> Vocabulary:
+    """The model row's vocabulary; InvalidInputError naming ``model.vocabulary`` when it is not one."""
+    try:
+        return Vocabulary.from_dict(row.vocabulary)
+    except InvalidInputError as error:
+        raise InvalidInputError(f"model.vocabulary.{error.field}", error.problem) from error
+    except (TypeError, ValueError, KeyError, AttributeError) as error:
+        raise InvalidInputError("model.vocabulary", f"not a vocabulary ({type(error).__name__}: {error})") from error
 
 
 def _unreadable(session: Session, model_id: str, error: BaseException) -> ModelRuntime | None:

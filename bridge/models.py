@@ -145,7 +145,9 @@ class Model(ResponseModel):
     hyperparameters: dict[str, Any] | None = Field(
         description="Nested: priors, sampler, k_rule (docs/api.md); null for an unavailable model whose stored ones cannot be read."
     )
-    vocabulary: dict[str, Any]
+    vocabulary: dict[str, Any] | None = Field(
+        description="null for an unavailable model whose stored vocabulary cannot be read."
+    )
     context_count: int
     vocabulary_size: int
     scene_count: int

@@ -87,29 +87,37 @@ def test_a_damaged_answer_is_a_clear_500_for_that_scene_and_check_names_it(
     assert code == 1 and "1 stored answer cannot be read, first scene 3" in out and "not repairable" in out, out
 
 
-def test_hyperparameters_of_the_wrong_shape_leave_the_listing_and_the_other_models_serving(
-    cli_database: str, engine: Engine, capsys: pytest.CaptureFixture[str]
+@pytest.mark.parametrize(
+    ("column", "wrong", "named"),
+    [
+        ("hyperparameters", '{"priors": {"alpha": "lots"}, "sampler": 7}', "alpha"),
+        ("vocabulary", '{"nouns": 42, "adjective_pairs": [], "verbs": []}', "model.vocabulary"),
+    ],
+)
+def test_a_model_row_of_the_wrong_shape_leaves_the_listing_and_the_other_models_serving(
+    cli_database: str, engine: Engine, capsys: pytest.CaptureFixture[str], column: str, wrong: str, named: str
 ) -> None:
     settings = make_settings(cli_database)
     with TestClient(create_app(settings)) as client:
         damaged = _model_with_scenes(client, "damaged", 3)
         healthy = _model_with_scenes(client, "healthy", 3)
-    wrong = '{"priors": {"alpha": "lots"}, "sampler": 7}'
     cast = "CAST(:value AS JSONB)" if engine.dialect.name == "postgresql" else ":value"
-    _execute(engine, f"UPDATE model SET hyperparameters = {cast} WHERE id = :m", value=wrong, m=damaged)
+    _execute(engine, f"UPDATE model SET {column} = {cast} WHERE id = :m", value=wrong, m=damaged)
     with TestClient(create_app(settings)) as client:
         listing = client.get("/v1/models")
         assert listing.status_code == 200, listing.text
         listed = {model["id"]: model for model in listing.json()}
-        assert listed[damaged]["status"] == "unavailable" and listed[damaged]["hyperparameters"] is None
-        assert "alpha" in listed[damaged]["unavailable_reason"]
+        assert listed[damaged]["status"] == "unavailable" and listed[damaged][column] is None, "never made up"
+        assert named in listed[damaged]["unavailable_reason"]
         assert listed[damaged]["scene_count"] == 3, "listed with its stored scenes, not the stand-in's empty memory"
-        assert listed[healthy]["status"] == "available" and listed[healthy]["hyperparameters"] is not None
+        assert listed[healthy]["status"] == "available" and listed[healthy][column] is not None
         answer = client.get(f"/v1/models/{damaged}/contexts")
         assert answer.status_code == 503 and answer.json()["error"] == "model_unavailable"
         assert client.post(f"/v1/models/{healthy}/scenes", json=concept_scenes(1, seed=1)[0]).status_code == 201
     code, out = _check(damaged, capsys)
-    assert code == 1 and "a server cannot load it" in out and "alpha" in out, out
+    assert code == 1 and "a server cannot load it" in out and named in out, out
+    assert main(["models", "repair", damaged]) == 1
+    assert "not repaired, nothing changed" in capsys.readouterr().out
 
 
 def test_undecodable_json_in_a_model_row_does_not_stop_the_server_from_starting(

@@ -225,7 +225,9 @@ class ModelRead(ReadSchema):
     hyperparameters: Hyperparameters | None = Field(
         description="null only for an unavailable model whose stored hyperparameters cannot be read."
     )
-    vocabulary: VocabularySchema
+    vocabulary: VocabularySchema | None = Field(
+        description="null only for an unavailable model whose stored vocabulary cannot be read."
+    )
     context_count: int = Field(description="K, the number of contexts discovered so far.")
     vocabulary_size: int = Field(description="|W|: distinct concepts seen in scenes.")
     scene_count: int

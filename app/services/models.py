@@ -146,7 +146,7 @@ def model_read(model: ModelRuntime) -> ModelRead:
         seed=model.seed,
         sigma=model.sigma,
         hyperparameters=_listed_hyperparameters(model),
-        vocabulary=VocabularySchema.model_validate(model.vocabulary.to_dict()),
+        vocabulary=VocabularySchema.model_validate(model.vocabulary.to_dict()) if model.vocabulary_known else None,
         context_count=summary.context_count,
         vocabulary_size=summary.vocabulary_size,
         scene_count=summary.scene_count,

@@ -254,8 +254,10 @@ def test_lock_model_reads_the_version_and_every_label(backend: str, request: pyt
             assert lda_repository.lock_model(session, "absent") is None
             # A keyed scene's key is looked up with the lock: a retry finds the stored answer.
             retried = lda_repository.lock_model(session, "m", idempotency_key="k")
-            stored = scene_repository.StoredAnswer(0, b"h" * 32, '{"id":0}')
-            assert retried == lda_repository.LockedModel(7, labels, "k", stored)
+            assert retried is not None and retried.stored_under_key is not None
+            assert (retried.version, retried.labels, retried.idempotency_key) == (7, labels, "k")
+            stored = retried.stored_under_key
+            assert (stored.scene_id, stored.request_hash, stored.answer) == (0, b"h" * 32, '{"id":0}')
             fresh = lda_repository.lock_model(session, "m", idempotency_key="new")
             assert fresh == lda_repository.LockedModel(7, labels, "new", None)
     finally:

@@ -37,6 +37,7 @@ from sqlalchemy.engine import make_url
 
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
 from tests.faults import (
+    FAULT_PACE,
     KeyedClient,
     TcpProxy,
     all_posts,
@@ -169,6 +170,7 @@ def _partition(
             f"{label}-robot{i}",
             deadline,
             request_timeout=answer_deadline + 5,
+            pace=FAULT_PACE,
         )
         for p, (label, server) in enumerate((("cut", cut_off), ("direct", direct)))
         for i in range(CLIENTS_PER_PROCESS)

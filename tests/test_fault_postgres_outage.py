@@ -27,6 +27,7 @@ import pytest
 
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
 from tests.faults import (
+    FAULT_PACE,
     KeyedClient,
     Reader,
     assert_nothing_lost_then_restart,
@@ -56,7 +57,7 @@ def test_postgres_outages_under_load_lose_nothing(tmp_path: Path) -> None:
         model_id = create_model(server.base_url, FAST_HYPERPARAMETERS, name="outage")
         deadline = time.monotonic() + 40
         clients = [
-            KeyedClient(server.base_url, model_id, concept_scenes(2000, seed=i), f"robot{i}", deadline)
+            KeyedClient(server.base_url, model_id, concept_scenes(2000, seed=i), f"robot{i}", deadline, pace=FAULT_PACE)
             for i in range(CLIENTS)
         ]
         for client in clients:

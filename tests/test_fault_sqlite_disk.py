@@ -38,6 +38,7 @@ from storage.database import create_database_engine
 from storage.migrations import upgrade_to_head
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes
 from tests.faults import (
+    FAULT_PACE,
     KeyedClient,
     assert_nothing_lost_then_restart,
     create_model,
@@ -102,7 +103,9 @@ def _run_fault(tmp_path: Path, database: Path, fault: Callable[[], AbstractConte
         model_id = create_model(server.base_url, FAST_HYPERPARAMETERS, name="disk")
         deadline = time.monotonic() + 45
         clients = [
-            KeyedClient(server.base_url, model_id, concept_scenes(2000, seed=10 + i), f"robot{i}", deadline)
+            KeyedClient(
+                server.base_url, model_id, concept_scenes(2000, seed=10 + i), f"robot{i}", deadline, pace=FAULT_PACE
+            )
             for i in range(CLIENTS)
         ]
         for client in clients:

@@ -48,7 +48,7 @@ from sqlalchemy import Engine
 from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session, sessionmaker
 
-from app.schemas.stream import ContextDiscoveredEvent, ModelFittedEvent, SceneEvent
+from app.schemas.stream import ContextDiscoveredEvent, ModelFittedEvent, SceneEvent, SceneUnreadableEvent
 from app.stream import CLOSE_NORMAL, StreamHub, Subscriber
 from storage.compression import DamagedAnswerError, decompress_answer
 from storage.repositories import feed as feed_repository
@@ -303,13 +303,15 @@ class SceneFeed:
                     return events
                 try:
                     events.extend(_events_of_answer(model_id, json.loads(decompress_answer(stored))))
-                except DamagedAnswerError as error:  # it cannot be sent; the stream goes on after it
+                except DamagedAnswerError as error:  # its place in the order is sent, and the stream goes on
                     logger.error(
-                        "model %s: scene %d's stored answer is damaged (%s); its stream skips it",
+                        "model %s: scene %d's stored answer is damaged (%s); its stream sends scene_unreadable",
                         model_id,
                         scene_id,
                         error,
                     )
+                    unreadable = SceneUnreadableEvent(model_id=model_id, scene_id=scene_id, detail=str(error))
+                    events.append(unreadable.model_dump(mode="json"))
                 cursor.next_scene_id += 1
             cursor.gap_since = None
             if len(rows) < SCENES_PER_QUERY:

@@ -56,7 +56,7 @@ class Subscriber:
         if self.next_scene_id is None:
             return True
         kind = event.get("type")
-        if kind == "scene":
+        if kind in ("scene", "scene_unreadable"):  # a scene's place in the order, its answer or not
             if event["scene_id"] != self.next_scene_id:
                 return False
             self.last_scene_id = self.next_scene_id

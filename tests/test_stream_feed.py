@@ -291,6 +291,48 @@ def test_the_feed_outlives_failed_reads(
     assert len(failed) == 1 and not failed[0].exc_info, "one line an outage, no traceback"
 
 
+def test_a_scene_whose_stored_answer_is_damaged_is_announced_in_its_place_and_the_stream_goes_on(
+    client: TestClient, other_client: TestClient, model_id: str, engine: Engine, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A trigger damages scene 2's stored answer inside the commit of the process that learns it
+    (its client still gets the answer it learned): the other process's stream sends a
+    ``scene_unreadable`` event in that scene's place, says so in the log, and sends the scenes after
+    it (a first version skipped the scene, and the subscriber, waiting for scene 2, took nothing more)."""
+    if engine.dialect.name == "postgresql":
+        trigger = [
+            (
+                "CREATE FUNCTION damage_scene_2() RETURNS trigger LANGUAGE plpgsql AS $$ BEGIN "
+                "IF NEW.id = 2 THEN NEW.answer_zlib := decode('0200000000', 'hex'); END IF; RETURN NEW; END $$"
+            ),
+            "CREATE TRIGGER damage_scene_2 BEFORE INSERT ON scene FOR EACH ROW EXECUTE FUNCTION damage_scene_2()",
+        ]
+    else:
+        trigger = [
+            (
+                "CREATE TRIGGER damage_scene_2 AFTER INSERT ON scene WHEN NEW.id = 2 BEGIN "
+                "UPDATE scene SET answer_zlib = X'0200000000' WHERE model_id = NEW.model_id AND id = 2; END"
+            )
+        ]
+    with engine.begin() as connection:
+        for statement in trigger:
+            connection.execute(text(statement))
+    with stream_of(other_client, model_id) as ws, caplog.at_level(logging.ERROR, logger="contextweb"):
+        reader = StreamReader(ws)
+        assert reader.next()["scene_count"] == 0
+        answers = [post_scene(client, model_id, body) for body in concept_scenes(4, seed=4)]
+        events = [event for event in reader.until_scenes(3) if event["type"] in ("scene", "scene_unreadable")]
+        assert [(event["type"], event["scene_id"]) for event in events] == [
+            ("scene", 0),
+            ("scene", 1),
+            ("scene_unreadable", 2),
+            ("scene", 3),
+        ]
+        assert "cannot be decompressed" in events[2]["detail"]
+        reader.assert_quiet(0.5)
+    assert [answer["scene_id"] for answer in answers] == [0, 1, 2, 3], "the learning process answered every scene"
+    assert any("scene 2's stored answer is damaged" in record.getMessage() for record in caplog.records)
+
+
 def test_notify_change_is_sent_at_commit_only(postgres_only: None, engine: Engine) -> None:
     url = engine.url.set(drivername="postgresql").render_as_string(hide_password=False)
     _, sessions = create_session_makers(engine)

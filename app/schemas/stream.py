@@ -33,6 +33,16 @@ class SceneEvent(ReadSchema):
     created_at: datetime
 
 
+class SceneUnreadableEvent(ReadSchema):
+    """Scene ``scene_id`` was learned, but its stored answer cannot be read back (it was damaged after
+    it was written): in its place in the order, so that the scenes after it follow."""
+
+    type: Literal["scene_unreadable"] = "scene_unreadable"
+    model_id: str
+    scene_id: int
+    detail: str
+
+
 class ContextDiscoveredEvent(ReadSchema):
     """K grew: Incremental-LDA added a context while learning ``scene_id``."""
 

@@ -452,6 +452,16 @@ class SceneEvent(ResponseModel):
     created_at: datetime
 
 
+class SceneUnreadableEvent(ResponseModel):
+    """Scene ``scene_id`` was learned, but its stored answer cannot be read back (damaged storage):
+    sent in its place in the order."""
+
+    type: Literal["scene_unreadable"]
+    model_id: str
+    scene_id: int
+    detail: str
+
+
 class ContextDiscoveredEvent(ResponseModel):
     """K grew while learning ``scene_id``."""
 
@@ -471,5 +481,6 @@ class ModelFittedEvent(ResponseModel):
 
 
 StreamEvent = Annotated[
-    HelloEvent | SceneEvent | ContextDiscoveredEvent | ModelFittedEvent, Field(discriminator="type")
+    HelloEvent | SceneEvent | SceneUnreadableEvent | ContextDiscoveredEvent | ModelFittedEvent,
+    Field(discriminator="type"),
 ]

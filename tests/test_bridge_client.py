@@ -268,3 +268,21 @@ def test_a_training_batch_carries_a_key_so_an_answer_lost_is_retried_with_it() -
     assert (answer.added, answer.training_object_count) == (1, 1) and len(stored) == 1
     keys = [request.headers["Idempotency-Key"] for request in requests]
     assert len(keys) == 2 and keys[0] == keys[1] and len(keys[0]) == 32, keys
+
+
+def test_the_bridge_reads_every_stream_event_the_service_sends() -> None:
+    """A type the service sends and the bridge's ``StreamEvent`` union lacks would end a robot's
+    stream with a validation error (``scene_unreadable`` was added on both sides together)."""
+    import typing
+
+    from app.schemas import stream as service_events
+    from bridge.models import StreamEvent
+
+    sent = {
+        schema.model_fields["type"].default
+        for schema in vars(service_events).values()
+        if isinstance(schema, type) and issubclass(schema, service_events.ReadSchema) and "type" in schema.model_fields
+    }
+    union = typing.get_args(StreamEvent)[0]
+    read = {typing.get_args(event.model_fields["type"].annotation)[0] for event in typing.get_args(union)}
+    assert sent == read, (sent, read)

@@ -316,6 +316,23 @@ def test_a_scene_whose_stored_answer_is_damaged_is_announced_in_its_place_and_th
     with engine.begin() as connection:
         for statement in trigger:
             connection.execute(text(statement))
+    try:
+        _damaged_scene_streamed(client, other_client, model_id, caplog)
+    finally:  # the test database outlives the test (PostgreSQL's is emptied, not dropped): so must not the trigger
+        with engine.begin() as connection:
+            connection.execute(
+                text(
+                    "DROP TRIGGER IF EXISTS damage_scene_2"
+                    + (" ON scene" if engine.dialect.name == "postgresql" else "")
+                )
+            )
+            if engine.dialect.name == "postgresql":
+                connection.execute(text("DROP FUNCTION IF EXISTS damage_scene_2()"))
+
+
+def _damaged_scene_streamed(
+    client: TestClient, other_client: TestClient, model_id: str, caplog: pytest.LogCaptureFixture
+) -> None:
     with stream_of(other_client, model_id) as ws, caplog.at_level(logging.ERROR, logger="contextweb"):
         reader = StreamReader(ws)
         assert reader.next()["scene_count"] == 0

@@ -510,7 +510,7 @@ class ModelRuntime:
         the stored (contexts, scenes, words) ``counts`` when they could be read."""
         vocabulary_known = True
         try:
-            vocabulary = Vocabulary.from_dict(row.vocabulary)  # type: ignore[union-attr]
+            vocabulary = _stored_vocabulary(row)  # type: ignore[arg-type]
         except Exception:  # noqa: BLE001 - a corrupt vocabulary is one more reason the model cannot load
             vocabulary, vocabulary_known = Vocabulary(nouns=("unknown",), adjective_pairs=(), verbs=()), False
         hyperparameters: dict[str, Any] | None

@@ -31,14 +31,12 @@ import numpy as np
 from sqlalchemy import (
     ColumnElement,
     CursorResult,
-    LargeBinary,
     Result,
     Row,
     delete,
     func,
     select,
     text,
-    type_coerce,
     update,
 )
 from sqlalchemy.orm import Session
@@ -55,6 +53,7 @@ from storage.models import (
     Word,
     utc_now,
 )
+from storage.repositories.feed import scenes_after
 from storage.repositories.incremental_lda import (
     DamagedBatchError,
     DamagedCheckpointError,
@@ -98,19 +97,27 @@ def check_model(session: Session, model_id: str) -> list[str]:
 
 def find_problems(session: Session, model_id: str) -> list[Problem]:
     """Every problem of the stored model, each marked repairable or not."""
+    problems, _ = _find_problems(session, model_id)
+    return problems
+
+
+def _find_problems(session: Session, model_id: str) -> tuple[list[Problem], list[Problem]]:
+    """:func:`find_problems`, and which of them are the kept batches' (:func:`_kept_batch_problems`),
+    so that :func:`repair_model` knows whether to drop them without reading them again."""
     if session.execute(select(Model.id).where(Model.id == model_id)).first() is None:
-        return [Problem(f"model {model_id!r} is not stored", repairable=False)]
+        return [Problem(f"model {model_id!r} is not stored", repairable=False)], []
     hyperparameters, problems = _model_json(session, model_id)
     state = _state_row(session, model_id)
     words = _id_range(session, Word.id, Word.model_id, model_id)
     scenes = _id_range(session, Scene.id, Scene.model_id, model_id)
     tokens, token_problems = _read_tokens(session, model_id)
+    kept_batch_problems = _kept_batch_problems(session, model_id)
     problems = [
         *problems,
         *_dense_id_problems("word", "words", words),
         *_dense_id_problems("scene", "scenes", scenes),
         *token_problems,
-        *_kept_batch_problems(session, model_id),
+        *kept_batch_problems,
         *_answer_problems(session, model_id),
     ]
     if tokens is not None:
@@ -122,7 +129,7 @@ def find_problems(session: Session, model_id: str) -> list[Problem]:
         k_rule = hyperparameters.get("k_rule") if isinstance(hyperparameters, dict) else None
         max_contexts = k_rule.get("max_contexts") if isinstance(k_rule, dict) else None
         problems += _state_problems(session, model_id, state, scenes.count, words.count, max_contexts, tokens)
-    return problems
+    return problems, kept_batch_problems
 
 
 def _model_json(session: Session, model_id: str) -> tuple[Any, list[Problem]]:
@@ -155,21 +162,16 @@ def _answer_problems(session: Session, model_id: str) -> list[Problem]:
     first_error = ""
     after = -1
     while True:
-        rows = session.execute(
-            select(Scene.id, type_coerce(Scene.answer, LargeBinary))
-            .where(Scene.model_id == model_id, Scene.id > after)
-            .order_by(Scene.id)
-            .limit(ANSWERS_PER_READ)
-        ).all()
+        rows = scenes_after(session, model_id, after, ANSWERS_PER_READ)
         for scene_id, stored in rows:
             try:
-                decompress_answer(bytes(stored))
+                decompress_answer(stored)
             except DamagedAnswerError as error:
-                damaged.append(int(scene_id))
+                damaged.append(scene_id)
                 first_error = first_error or str(error)
         if len(rows) < ANSWERS_PER_READ:
             break
-        after = int(rows[-1][0])
+        after = rows[-1][0]
     if not damaged:
         return []
     return [
@@ -267,7 +269,7 @@ def repair_model(session: Session, model_id: str) -> list[str]:
     if session.execute(select(Model.id).where(Model.id == model_id)).first() is None:
         raise LookupError(f"model {model_id!r} is not stored")
     state = _state_row(session, model_id, lock=True)  # the model's writers lock it too (PostgreSQL)
-    problems = find_problems(session, model_id)
+    problems, kept_batch_problems = _find_problems(session, model_id)
     unrepairable = [problem.message for problem in problems if not problem.repairable]
     if unrepairable:
         raise UnrepairableModelError(model_id, unrepairable)
@@ -276,7 +278,7 @@ def repair_model(session: Session, model_id: str) -> list[str]:
     assert state is not None  # a missing state row is unrepairable
     tokens, _ = _read_tokens(session, model_id)
     assert tokens is not None  # unreadable tokens are unrepairable
-    changes = _drop_kept_batches(session, model_id) if _kept_batch_problems(session, model_id) else []
+    changes = _drop_kept_batches(session, model_id) if kept_batch_problems else []
     largest_batch = session.scalar(select(func.max(TokenBatch.version)).where(TokenBatch.model_id == model_id))
     new_version = max(state.version, largest_batch or 0) + 1
     scene_count = _id_range(session, Scene.id, Scene.model_id, model_id).count

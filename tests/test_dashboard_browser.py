@@ -21,7 +21,9 @@ import pytest
 from bridge import Client
 from sim.robot import simulate, train
 from sim.world import World, WorldConfig
+from storage.database import create_database_engine
 from tests.test_bridge_live import READ_KEY, WRITE_KEY, ServiceProcess
+from tests.test_damaged_storage import _execute
 
 CHROMIUM = os.environ.get("CONTEXTWEB_CHROMIUM", "/usr/bin/chromium")
 CHROMEDRIVER = os.environ.get("CONTEXTWEB_CHROMEDRIVER", "/usr/bin/chromedriver")
@@ -223,6 +225,64 @@ def test_dashboard_follows_simulated_scenes_live(service: ServiceProcess, browse
     _wait(lambda: _data(browser, "posterior-chart", "points") == "23", "polling to fetch the new scenes")
     _wait(lambda: _data(browser, "contexts", "scenes") == "23", "polling to read the contexts again")
     robot.close()
+
+
+def test_dashboard_marks_a_scene_whose_stored_answer_is_damaged_and_follows_the_scenes_after_it(
+    service: ServiceProcess, browser
+) -> None:
+    """A trigger damages scene 5's stored answer inside the commit that learns it (as in
+    tests/test_stream_feed.py): the stream sends ``scene_unreadable`` in its place, and the page lists it
+    there, marked, with the reason; the panels that read an answer stay on scene 4, and the scenes after
+    it follow. A page opened later meets it in the history (a whole summary, a 500 for its answer) and
+    marks it too."""
+    world = World(WorldConfig.paper(), seed=0)
+    scenes = world.scenes(9, seed=4, contexts=["kitchen", "playroom"])
+    with Client(service.url, WRITE_KEY) as robot:
+        model_id = robot.models.create("damaged-answer", seed=1).id
+        simulate(robot, model_id, world, [scenes[:5]], level="concepts", train_level=None, progress=False)
+        browser.get(f"{service.url}/?key={READ_KEY}&model={model_id}")
+        _wait(lambda: _data(browser, "connection", "mode") == "live", "the websocket to open")
+        _wait(lambda: _data(browser, "stages", "scene") == "4", "the panels of scene 4")
+
+        engine = create_database_engine(service.env["CONTEXTWEB_DATABASE_URL"])
+        try:
+            _execute(
+                engine,
+                f"CREATE TRIGGER damage_dashboard_scene_5 AFTER INSERT ON scene "
+                f"WHEN NEW.model_id = '{model_id}' AND NEW.id = 5 BEGIN "
+                "UPDATE scene SET answer_zlib = X'0200000000' WHERE model_id = NEW.model_id AND id = 5; END",
+            )
+            simulate(robot, model_id, world, [scenes[5:6]], level="concepts", train_level=None, progress=False)
+        finally:  # the module's other tests share the database
+            _execute(engine, "DROP TRIGGER IF EXISTS damage_dashboard_scene_5")
+            engine.dispose()
+
+        marker = '#scene-list .scene.unreadable[data-scene="5"]'
+        shown = _wait(lambda: _texts(browser, marker), "the unreadable scene's marker")[0]
+        assert shown.startswith("scene 5: stored answer unreadable — the stored answer cannot be decompressed"), shown
+        _wait(lambda: _data(browser, "contexts", "scenes") == "6", "the contexts to be read again after scene 5")
+        assert _data(browser, "stages", "scene") == "4", "the stages stay on the last readable scene"
+        assert browser.find_element("id", "web-caption").text.startswith("Scene 4 in")
+        assert _data(browser, "posterior-chart", "points") == "5", "the charts show the readable scenes"
+        assert _data(browser, "connection", "mode") == "live"
+        assert "Could not reach" not in browser.find_element("id", "message").text
+        assert "scene 5's stored answer is damaged" in service.log_path.read_text(errors="replace")
+
+        simulate(robot, model_id, world, [scenes[6:]], level="concepts", train_level=None, progress=False)
+        _wait(lambda: _data(browser, "stages", "scene") == "8", "the scenes after the damaged one")
+        assert _data(browser, "posterior-chart", "points") == "8"
+        listed = [item.get_attribute("data-scene") for item in browser.find_elements("css selector", "#scene-list li")]
+        assert listed == [str(i) for i in range(8, -1, -1)], "each scene in its place, newest first"
+        assert _texts(browser, "#scene-list .unreadable") == [shown]
+        assert _data(browser, "scene-list", "unreadable") == "1"
+
+    # A page opened now reads scene 5 in the history: its answer, read for the panels, is a 500.
+    browser.get(f"{service.url}/?key={READ_KEY}&model={model_id}")
+    _wait(lambda: _data(browser, "connection", "mode") == "live", "the reopened page's websocket")
+    reread = _wait(lambda: _texts(browser, marker), "the marker of the scene read in the history")[0]
+    assert reread.startswith("scene 5: stored answer unreadable — ") and "cannot be read" in reread, reread
+    assert _data(browser, "posterior-chart", "points") == "9"
+    _wait(lambda: _data(browser, "stages", "scene") == "8", "the reopened page's panels")
 
 
 def test_dashboard_without_a_key_asks_for_one(service: ServiceProcess, browser) -> None:

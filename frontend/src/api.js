@@ -7,6 +7,7 @@ export class ApiError extends Error {
     super(`${status} ${body.error ?? "error"}: ${body.detail ?? ""}`);
     this.status = status;
     this.error = body.error;
+    this.detail = body.detail;
   }
 }
 

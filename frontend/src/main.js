@@ -1,5 +1,6 @@
 // The read-only dashboard: models; for one model its contexts (named by their labels), the posterior
-// of recent scenes, K over time, the latest object's concept web and its three stages, and a plan.
+// of recent scenes, K over time, the recent scenes (those whose stored answer cannot be read marked),
+// the latest object's concept web and its three stages, and a plan.
 // Live over the websocket; polling when it is down.
 import "uplot/dist/uPlot.min.css";
 import "./style.css";
@@ -8,10 +9,12 @@ import { ContextCountChart, PosteriorChart } from "./charts.js";
 import { CooccurrenceCounter, renderConceptWeb } from "./conceptWeb.js";
 import { contextName, contextNames, renderContexts } from "./contexts.js";
 import { renderPlan } from "./planning.js";
+import { renderSceneList } from "./sceneList.js";
 import { renderStages } from "./stages.js";
 
 const RECENT_SCENES = 200;
 const SCENES_FOR_EDGES = 10;
+const SCENES_LISTED = 12;
 const POLL_MS = 3000;
 const RECONNECT_MS = 10000;
 const REFRESH_DEBOUNCE_MS = 800;
@@ -93,6 +96,10 @@ class ModelSession {
     this.modelId = modelId;
     this.model = null;
     this.scenes = [];
+    // Scene id → why its stored answer cannot be read back (the stream's scene_unreadable, or a 500
+    // stored_data_damaged): listed in its place, never read again. A streamed one has no summary, so
+    // it is not in this.scenes (nor in the charts); one met in the history is, with its summary.
+    this.unreadable = new Map();
     this.counter = new CooccurrenceCounter();
     this.fittedEdges = null;
     this.latest = null;
@@ -168,14 +175,62 @@ class ModelSession {
   }
 
   async seedCooccurrence() {
-    const recent = this.scenes.slice(-SCENES_FOR_EDGES);
-    const answers = await Promise.all(recent.map((s) => api.scene(this.modelId, s.scene_id)));
-    for (const answer of answers) for (const object of answer.objects) this.counter.add(object.active_concepts);
+    const recent = this.readableScenes().slice(-SCENES_FOR_EDGES);
+    const answers = await Promise.all(recent.map((s) => this.readAnswer(s.scene_id)));
+    for (const answer of answers) {
+      if (answer) for (const object of answer.objects) this.counter.add(object.active_concepts);
+    }
+  }
+
+  // A scene's stored answer, or null when the service says it is damaged: the scene is then marked
+  // unreadable, as the stream's scene_unreadable would have (the history's summaries do not say).
+  async readAnswer(sceneId) {
+    try {
+      return await api.scene(this.modelId, sceneId);
+    } catch (error) {
+      if (!(error instanceof ApiError) || error.error !== "stored_data_damaged") throw error;
+      this.markUnreadable(sceneId, error.detail ?? error.message);
+      return null;
+    }
+  }
+
+  markUnreadable(sceneId, detail) {
+    this.unreadable.set(sceneId, detail);
+    if (this.unreadable.size > RECENT_SCENES) this.unreadable.delete(this.unreadable.keys().next().value);
+    this.drawSceneList();
+  }
+
+  readableScenes() {
+    return this.scenes.filter((s) => !this.unreadable.has(s.scene_id));
+  }
+
+  // The panels that read a scene's answer (concept web, stages, plan) show the newest readable one.
+  latestReadable() {
+    const readable = this.readableScenes();
+    return readable[readable.length - 1];
+  }
+
+  // The id after the last scene seen, readable or not: where the history is read on from, so that a
+  // scene announced unreadable is not asked for again.
+  nextSceneId() {
+    const last = this.scenes[this.scenes.length - 1];
+    return Math.max(last ? last.scene_id + 1 : 0, ...[...this.unreadable.keys()].map((id) => id + 1));
   }
 
   drawCharts() {
     charts.posterior.render(this.scenes);
     charts.contextCount.render(this.scenes);
+    this.drawSceneList();
+  }
+
+  drawSceneList() {
+    renderSceneList($("scene-list"), $("scene-list-note"), {
+      modelId: this.modelId,
+      scenes: this.scenes,
+      unreadable: this.unreadable,
+      names: this.contextNames,
+      shown: SCENES_LISTED,
+    });
   }
 
   // Contexts, the latest object's web and the plan: re-read after scenes arrive (debounced).
@@ -203,15 +258,21 @@ class ModelSession {
       this.contextNames = contextNames(listing);
       renderContexts($("contexts"), listing, $("relevance"));
       charts.posterior.setNames(this.contextNames);
+      this.drawSceneList();
       if (this.lastPlan) renderPlan($("plan"), this.lastPlan, this.contextNames);
     }
-    const last = this.scenes[this.scenes.length - 1];
-    if (!last) return;
-    const latestShown = [last.scene_id, this.fittedEdges, ...this.contextNames];
-    if (!sameItems(latestShown, this.latestShown)) {
-      this.latest = await api.scene(this.modelId, last.scene_id);
+    let last;
+    for (;;) {
+      last = this.latestReadable();
+      if (!last) return;
+      const latestShown = [last.scene_id, this.fittedEdges, ...this.contextNames];
+      if (sameItems(latestShown, this.latestShown)) break;
+      const answer = await this.readAnswer(last.scene_id);
+      if (!answer) continue; // damaged (now marked): the scene before it is the latest readable one
+      this.latest = answer;
       this.latestShown = latestShown;
       this.renderLatestObject();
+      break;
     }
     if (this.plannedContext !== last.map_context) await this.plan();
   }
@@ -236,7 +297,7 @@ class ModelSession {
 
   async plan() {
     const form = new FormData($("plan-form"));
-    const last = this.scenes[this.scenes.length - 1];
+    const last = this.latestReadable();
     const request = { object: form.get("object"), start: Number(form.get("start")), goal: Number(form.get("goal")), mode: "paper" };
     if (last) request.scene_id = last.scene_id;
     try {
@@ -254,14 +315,19 @@ class ModelSession {
 
   onEvent(event) {
     if (event.type === "hello") {
-      const last = this.scenes[this.scenes.length - 1];
-      if (event.scene_count > (last ? last.scene_id + 1 : 0)) this.catchUp();
+      if (event.scene_count > this.nextSceneId()) this.catchUp();
     } else if (event.type === "scene") {
       if (this.scenes.some((s) => s.scene_id === event.scene_id)) return;
       this.scenes.push(event);
       this.scenes = this.scenes.slice(-RECENT_SCENES);
       for (const concepts of event.active_concepts) this.counter.add(concepts);
       this.drawCharts();
+      this.scheduleRefresh();
+    } else if (event.type === "scene_unreadable") {
+      // A learned scene whose stored answer was damaged: listed in its place; the charts and the
+      // panels keep the last readable scene, and the contexts (which it changed) are read again.
+      if (this.unreadable.has(event.scene_id)) return;
+      this.markUnreadable(event.scene_id, event.detail);
       this.scheduleRefresh();
     } else if (event.type === "context_discovered") {
       showMessage(`A new context was discovered at scene ${event.scene_id}: K = ${event.context_count}.`);
@@ -271,9 +337,8 @@ class ModelSession {
   }
 
   async catchUp() {
-    const last = this.scenes[this.scenes.length - 1];
     try {
-      await this.fetchScenes(last ? last.scene_id + 1 : 0);
+      await this.fetchScenes(this.nextSceneId());
       this.scheduleRefresh();
     } catch (error) {
       handleError(error);

@@ -9,6 +9,7 @@ business; it is exercised here on one small cloud.
 from __future__ import annotations
 
 import base64
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,10 +17,18 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine
 from sqlalchemy.orm import Session
 
+from app.deps import write_model
+from app.registry import ModelRuntime
+from app.schemas.training import FitCreate
+from app.services import training as training_service
+from app.state import AppState
 from core.features.layout import EFFECT_SIZE, ENTITY_SIZE
 from sim.world import World
+from storage.database import autocommit_reads
+from storage.repositories import models as model_repository
 from storage.repositories.incremental_lda import stored_version
 from tests.conftest import synthetic_training_objects
+from tests.test_sqlite_locks import outside_write_lock
 
 
 @pytest.fixture(scope="module")
@@ -236,7 +245,69 @@ def test_a_keyed_training_batch_retried_is_answered_again_and_adds_nothing(
     changed = client.post(url, json=second_batch, headers={"Idempotency-Key": "batch-1"})
     assert changed.status_code == 422 and changed.json()["error"] == "idempotency_key_reused", changed.text
     assert changed.json()["field"] == "header.Idempotency-Key"
+    # The key's reuse is said first, before what is wrong with the body (its rows are computed
+    # before the write, its refusal raised only after the key's lookup).
+    wrong_noun = {"objects": [{**training_objects[0], "noun": "spaceship"}]}
+    reused = client.post(url, json=wrong_noun, headers={"Idempotency-Key": "batch-1"})
+    assert reused.status_code == 422 and reused.json()["error"] == "idempotency_key_reused", reused.text
+    refused = client.post(url, json=wrong_noun, headers={"Idempotency-Key": "batch-3"})
+    assert refused.status_code == 422 and refused.json()["field"] == "objects[0].noun", refused.text
     assert client.get(f"/v1/models/{model_id}").json()["training_object_count"] == 15  # nothing added twice
 
     keyless = client.post(url, json=first_batch)  # without a key a repeat is a new batch
     assert keyless.json() == {"added": 10, "training_object_count": 25}
+
+
+def _model_runtime(client: TestClient, model_id: str) -> tuple[AppState, ModelRuntime]:
+    state: AppState = client.app_state["contextweb"]
+    model = state.registry.get(model_id)
+    assert model is not None
+    return state, model
+
+
+def _prepared_fit(state: AppState, model: ModelRuntime) -> training_service.PreparedFit:
+    """A fit computed as the fit route computes it: from one read, outside the model's write."""
+    with autocommit_reads(state.read_sessions) as session:
+        return training_service.prepare_fit(session, model, FitCreate(method="kmeans"))
+
+
+def test_a_fit_computed_before_its_write_is_stored_only_while_its_objects_are_all_the_models(
+    client: TestClient, model_id: str, training_objects: list[dict]
+) -> None:
+    """The fit route computes outside the model's write; the write stores that fit if no training
+    object was added in between, else fits again on all of them: a fit never leaves an object out."""
+    state, model = _model_runtime(client, model_id)
+    first, later = training_objects, training_objects[:5]  # every concept first; then 5 objects more
+    assert client.post(f"/v1/models/{model_id}/training-objects", json={"objects": first}).status_code == 201
+
+    current = _prepared_fit(state, model)
+    stored = write_model(state, model, lambda s: training_service.fit(s, model, FitCreate(method="kmeans"), current))
+    assert stored == current.answer and stored.training_object_count == 45
+    assert model.writer.fitted is current.fitted  # stored as computed, not fitted again
+
+    stale = _prepared_fit(state, model)
+    assert client.post(f"/v1/models/{model_id}/training-objects", json={"objects": later}).status_code == 201
+    stored = write_model(state, model, lambda s: training_service.fit(s, model, FitCreate(method="kmeans"), stale))
+    assert stored.training_object_count == 50 and model.writer.fitted is not stale.fitted
+    # What was stored is the fit of all 50 objects, the one a fit from scratch gives.
+    fresh = _prepared_fit(state, model)
+    assert (fresh.prototypes_state, fresh.concept_web_state) != (stale.prototypes_state, stale.concept_web_state)
+    with state.read_sessions() as session:
+        row = model_repository.get_model(session, model_id)
+        assert row is not None
+        assert (row.prototypes, row.concept_web) == (fresh.prototypes_state, fresh.concept_web_state)
+
+
+@pytest.mark.parametrize("database_url", ["sqlite"], indirect=True)
+def test_a_fit_is_computed_without_sqlites_write_lock(
+    client: TestClient, database_url: str, model_id: str, training_objects: list[dict]
+) -> None:
+    """A fit's computation (seconds on a large training set) reads only: on SQLite it runs while
+    another connection holds the database's one write lock, which every model's writes share."""
+    state, model = _model_runtime(client, model_id)
+    assert client.post(f"/v1/models/{model_id}/training-objects", json={"objects": training_objects}).status_code == 201
+    with outside_write_lock(Path(database_url.removeprefix("sqlite:///"))):
+        prepared = _prepared_fit(state, model)
+    assert prepared.object_count == 45
+    fitted = client.post(f"/v1/models/{model_id}/fit", json={"method": "kmeans"})
+    assert fitted.status_code == 200 and fitted.json() == prepared.answer.model_dump(mode="json")

@@ -35,6 +35,7 @@ from app.routing import JsonBodyRoute
 from app.schemas.training import FitCreate, FitRead, PrototypeTableRead, TrainingBatchCreate, TrainingBatchRead
 from app.services import training as training_service
 from app.state import AppState
+from storage.database import autocommit_reads
 
 router = APIRouter(prefix="/v1/models/{model_id}", tags=["training"], route_class=JsonBodyRoute)
 _WRITE_ERRORS = (InvalidInput, ModelNotFound, Unauthorized, Forbidden, ModelBusy, RateLimited, StorageBusy)
@@ -69,9 +70,11 @@ async def add_training_objects(
 def _add_training_objects(
     state: AppState, model: ModelRuntime, body: TrainingBatchCreate, idempotency_key: str | None
 ) -> training_service.AddedBatch:
-    """The batch in one unit of work of its model; a replay changes nothing (no new version)."""
+    """The batch's rows computed first (raw payloads' features: seconds), then stored in one unit
+    of work of its model; a replay changes nothing (no new version)."""
+    prepared = training_service.prepare_training_objects(model, body)
     with model_write(state, model) as write:
-        added = training_service.add_training_objects(write.session, model, body, idempotency_key)
+        added = training_service.add_training_objects(write.session, model, body, idempotency_key, prepared)
         write.unchanged = added.replayed
         return added
 
@@ -83,10 +86,16 @@ def _add_training_objects(
     responses=error_responses(*_WRITE_ERRORS, ModelNotFitted),
 )
 async def fit(model: WriteModelDep, state: StateDep, admission: AdmissionDep, body: FitCreate | None = None) -> FitRead:
-    options = body or FitCreate()
-    return await admission.run_write(
-        model.id, write_model, state, model, lambda session: training_service.fit(session, model, options)
-    )
+    return await admission.run_write(model.id, _fit, state, model, body or FitCreate())
+
+
+def _fit(state: AppState, model: ModelRuntime, options: FitCreate) -> FitRead:
+    """The fit computed from one read of the training objects, outside the model's write (seconds,
+    which on SQLite would hold every model's writes), then stored in one unit of work of its model
+    (recomputed there only if objects were added meanwhile: ``training_service.fit``)."""
+    with autocommit_reads(state.read_sessions) as session:
+        prepared = training_service.prepare_fit(session, model, options)
+    return write_model(state, model, lambda session: training_service.fit(session, model, options, prepared))
 
 
 @router.get(

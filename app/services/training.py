@@ -42,13 +42,38 @@ class AddedBatch(NamedTuple):
     """True when a keyed batch's earlier answer is given again (nothing was added)."""
 
 
+class PreparedBatch(NamedTuple):
+    """A training batch's rows computed outside the model's write (:func:`prepare_training_objects`),
+    or why the batch is refused."""
+
+    rows: list[dict[str, object]]
+    refusal: InvalidInput | None
+
+
+def prepare_training_objects(model: ModelRuntime, body: TrainingBatchCreate) -> PreparedBatch:
+    """The batch's rows (each object's labels checked, its features extracted from raw payloads:
+    about a second an object) or its refusal, computed from the body and the model's vocabulary
+    alone: a route runs it before the model's write, which on SQLite holds every model's writes."""
+    try:
+        return PreparedBatch(
+            [_training_row(model.vocabulary, obj, f"objects[{i}]") for i, obj in enumerate(body.objects)], None
+        )
+    except InvalidInput as refusal:
+        return PreparedBatch([], refusal)
+
+
 def add_training_objects(
-    session: Session, model: ModelRuntime, body: TrainingBatchCreate, idempotency_key: str | None = None
+    session: Session,
+    model: ModelRuntime,
+    body: TrainingBatchCreate,
+    idempotency_key: str | None = None,
+    prepared: PreparedBatch | None = None,
 ) -> AddedBatch:
-    """Add the batch's objects, under the model's write lock. ``idempotency_key``: a retry with the
-    same key and body is answered as the batch first was, and adds nothing; another body is 422
-    ``idempotency_key_reused``. The lookup is under the model's lock, so two processes cannot both
-    add a batch of one key."""
+    """Add the batch's objects (``prepared``: its rows computed before the write, else computed
+    now), under the model's write lock. ``idempotency_key``: a retry with the same key and body is
+    answered as the batch first was, and adds nothing; another body is 422
+    ``idempotency_key_reused``, before any refusal of the body itself. The lookup is under the
+    model's lock, so two processes cannot both add a batch of one key."""
     request_hash = request_digest(idempotency_key, body)
     if idempotency_key is not None:
         stored = model_repository.find_training_batch(session, model.id, idempotency_key)
@@ -56,7 +81,9 @@ def add_training_objects(
             check_retry(idempotency_key, bytes(stored.request_hash), request_hash)
             answer = TrainingBatchRead(added=stored.added, training_object_count=stored.training_object_count)
             return AddedBatch(answer, replayed=True)
-    rows = [_training_row(model.vocabulary, obj, f"objects[{i}]") for i, obj in enumerate(body.objects)]
+    rows, refusal = prepared if prepared is not None else prepare_training_objects(model, body)
+    if refusal is not None:
+        raise refusal
     model_repository.add_training_objects(session, model.id, rows)
     total = model.training_object_count + len(rows)
     if idempotency_key is not None and request_hash is not None:
@@ -103,9 +130,23 @@ def _check_adjectives(vocabulary: Vocabulary, adjectives: list[str], field: str)
             raise InvalidInput(field, f"needs exactly one of {first!r} / {second!r}, got {given}")
 
 
-def fit(session: Session, model: ModelRuntime, body: FitCreate) -> FitRead:
-    """Fit the model's perception from all its training objects; it replaces the old one on commit
-    (the stream's ``model_fitted`` event comes from the database: app/feed.py)."""
+class PreparedFit(NamedTuple):
+    """A fit computed from the training objects up to ``last_object_id`` (:func:`prepare_fit`)."""
+
+    object_count: int
+    last_object_id: int
+    fitted: FittedPerception
+    answer: FitRead
+    prototypes_state: dict[str, object]
+    concept_web_state: dict[str, object]
+
+
+def prepare_fit(session: Session, model: ModelRuntime, body: FitCreate) -> PreparedFit:
+    """Fit the model's perception from all its stored training objects, read in ``session``.
+
+    Pure computation on one read of the objects: a route runs it outside the model's write, so
+    that the seconds a fit takes do not hold the database's lock (on SQLite the one write lock of
+    every model); :func:`fit` then stores it if the objects are still the same."""
     objects = model_repository.list_training_objects(session, model.id)
     if not objects:
         raise ModelNotFitted(model.id, "training objects")
@@ -132,22 +173,42 @@ def fit(session: Session, model: ModelRuntime, body: FitCreate) -> FitRead:
         [vector for vector, _, _ in effect_rows], [behaviour for _, behaviour, _ in effect_rows]
     )
     fitted_at = datetime.now(UTC)
+    return PreparedFit(
+        object_count=len(objects),
+        last_object_id=objects[-1].id,
+        fitted=FittedPerception(Perception(vocabulary, prototypes, concept_web), effects, fitted_at),
+        answer=FitRead(
+            model_id=model.id,
+            method=prototypes.method,
+            training_object_count=len(objects),
+            concept_web_edges=len(concept_web.edges),
+            behaviours=[] if effects is None else list(effects.behaviours),
+        ),
+        prototypes_state=jsonable(prototypes.to_state()),
+        concept_web_state=jsonable(concept_web.to_state()),
+    )
+
+
+def fit(session: Session, model: ModelRuntime, body: FitCreate, prepared: PreparedFit | None = None) -> FitRead:
+    """Store a fit of the model's perception from all its training objects, in the model's write;
+    it replaces the old one on commit (the stream's ``model_fitted`` event comes from the database:
+    app/feed.py). ``prepared`` (computed before the write) is stored if the model's training
+    objects are still those it was computed from (training objects are only ever added, so their
+    count and last id say so); otherwise, or without one, the fit is computed now, in the write."""
+    if prepared is None or model_repository.training_objects_extent(session, model.id) != (
+        prepared.object_count,
+        prepared.last_object_id,
+    ):
+        prepared = prepare_fit(session, model, body)
     model_repository.save_fit(
         session,
         model.id,
-        prototypes=jsonable(prototypes.to_state()),
-        concept_web=jsonable(concept_web.to_state()),
-        fitted_at=fitted_at,
+        prototypes=prepared.prototypes_state,
+        concept_web=prepared.concept_web_state,
+        fitted_at=prepared.fitted.fitted_at,
     )
-
-    model.writer.install_fit(FittedPerception(Perception(vocabulary, prototypes, concept_web), effects, fitted_at))
-    return FitRead(
-        model_id=model.id,
-        method=prototypes.method,
-        training_object_count=len(objects),
-        concept_web_edges=len(concept_web.edges),
-        behaviours=[] if effects is None else list(effects.behaviours),
-    )
+    model.writer.install_fit(prepared.fitted)
+    return prepared.answer
 
 
 def prototype_table(model: ModelRuntime) -> PrototypeTableRead:

@@ -6,7 +6,7 @@ from collections.abc import Sequence
 from datetime import datetime
 from typing import Any, NamedTuple
 
-from sqlalchemy import delete, select, update
+from sqlalchemy import delete, func, select, update
 from sqlalchemy.orm import Session
 
 from storage.models import Model, TrainingBatch, TrainingObject
@@ -101,6 +101,15 @@ def list_training_objects(session: Session, model_id: str) -> Sequence[TrainingO
     return session.scalars(
         select(TrainingObject).where(TrainingObject.model_id == model_id).order_by(TrainingObject.id)
     ).all()
+
+
+def training_objects_extent(session: Session, model_id: str) -> tuple[int, int]:
+    """How many training objects the model has and the id of the last (0 when none): objects are
+    only ever added, so the two name the set a fit used (app/services/training.py)."""
+    count, last = session.execute(
+        select(func.count(), func.coalesce(func.max(TrainingObject.id), 0)).where(TrainingObject.model_id == model_id)
+    ).one()
+    return int(count), int(last)
 
 
 def find_training_batch(session: Session, model_id: str, idempotency_key: str) -> TrainingBatch | None:

@@ -173,6 +173,12 @@ class Admission:
             except Postponed as postponed:
                 return await anyio.to_thread.run_sync(postponed.resume, limiter=self.write_threads)
 
+    async def run_follow_up(self, work: Callable[..., T], *args: object) -> T:
+        """``work(*args)`` that follows a committed write (a scene's checkpoint: seconds at a million
+        scenes) on a write thread: never on a scene thread, which the process's other models wait
+        for, and outside the model's queue, whose next write need not wait for it."""
+        return await anyio.to_thread.run_sync(work, *args, limiter=self.write_threads)
+
     def refusal(self, model_id: str, body_bytes: int) -> ModelBusy | None:
         """The 429 a write of ``body_bytes`` to ``model_id`` would get now, or None."""
         gate = self._gates.get(model_id)

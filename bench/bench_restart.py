@@ -99,6 +99,7 @@ def build(
         started = time.perf_counter()
         learned = 0
         while learned < size:
+            checkpoints = []
             with model.writer.transaction(state.write_sessions, state.registry) as write:
                 for i in range(min(BATCH, size - learned)):
                     if i:
@@ -106,9 +107,12 @@ def build(
                     key = f"{learned:032x}" if keyed else None
                     read = scene_service.read_scene(model, bodies[learned % len(bodies)], key)
                     prepared = scene_service.prepare_scene(model, read)
-                    scene_service.learn_scene(write.session, model, write.version, prepared, key, write.locked)
+                    scene = scene_service.learn_scene(write.session, model, write.version, prepared, key, write.locked)
+                    checkpoints += [scene.checkpoint] if scene.checkpoint is not None else []
                     learned += 1
                 write.version_saved = True
+            for checkpoint in checkpoints:  # after the commit, as the service stores them
+                scene_service.store_checkpoint(state.write_sessions, model_id, checkpoint)
             if learned % 50_000 < BATCH:
                 print(f"  {learned:,} scenes in {time.perf_counter() - started:.0f} s", flush=True)
         seconds = time.perf_counter() - started

@@ -151,7 +151,7 @@ def decompress_answer(stored: bytes) -> str:
 def pack_arrays(arrays: dict[str, np.ndarray]) -> bytes:
     """Integer arrays as one deflated ``.npz`` blob, each in the smallest type that holds its values."""
     buffer = io.BytesIO()
-    np.savez(buffer, allow_pickle=False, **{name: _narrowest(array) for name, array in arrays.items()})
+    np.savez(buffer, allow_pickle=False, **{name: narrowest(array) for name, array in arrays.items()})
     return zlib.compress(buffer.getvalue(), 1)
 
 
@@ -165,7 +165,8 @@ def unpack_arrays(blob: bytes) -> dict[str, np.ndarray]:
         raise ValueError(f"not a packed array blob ({type(error).__name__}: {error})") from error
 
 
-def _narrowest(array: np.ndarray) -> np.ndarray:
+def narrowest(array: np.ndarray) -> np.ndarray:
+    """A copy of integer ``array`` in the narrowest integer type that holds its values (unsigned when none is negative)."""
     values = np.asarray(array)
     if values.size == 0:
         return values.astype(np.uint8)
@@ -191,7 +192,7 @@ def pack_small_arrays(arrays: Sequence[np.ndarray]) -> bytes:
     header, each array is in its narrowest unsigned type, and the whole is raw-deflated when that
     is shorter (the same scene: 190 bytes). The arrays come back in order, in their stored types.
     """
-    narrow = [_narrowest(np.asarray(array)) for array in arrays]
+    narrow = [narrowest(np.asarray(array)) for array in arrays]
     if any(array.ndim != 1 or array.dtype.kind != "u" for array in narrow):
         raise ValueError("pack_small_arrays stores one-dimensional non-negative integer arrays only")
     header = bytes([len(narrow)]) + b"".join(_SMALL_HEADER.pack(a.shape[0], a.dtype.itemsize) for a in narrow)

@@ -5,9 +5,10 @@ adds its ``scene`` row and one ``token_batch`` row (its new tokens' words and
 contexts, and the earlier tokens its sweeps reassigned, packed), rewrites the
 ``context_word_count`` entries (n_kw of Eq. 5) that moved, and replaces the
 small ``incremental_lda_state`` row (K, scene count, random state) — all in the
-scene's transaction; every ``checkpoint_interval``-th scene also replaces the
-model's ``incremental_lda_checkpoint`` (the whole corpus as packed arrays) and
-deletes the batches at or below the previous checkpoint's version. The
+scene's transaction; after the commit of every ``checkpoint_interval``-th scene,
+a transaction of its own replaces the model's ``incremental_lda_checkpoint`` (the
+whole corpus at that scene's version, as packed arrays) and deletes the batches at
+or below the previous checkpoint's version. The
 invariants: for every model, the checkpoint with the batches above its version
 applied in order gives every token's word and context, and ``context_word_count``
 equals their counts grouped by (context, word).
@@ -224,7 +225,8 @@ class TokenBatch(Base):
 class IncrementalLdaCheckpoint(Base):
     """The latest checkpoint of a model's corpus: every token's word and context at one version.
 
-    Written inside the transaction of every ``checkpoint_interval``-th scene, so that a start
+    Written after the commit of every ``checkpoint_interval``-th scene, at that scene's version,
+    in a transaction of its own (app/services/scenes.py ``store_checkpoint``), so that a start
     loads it and only the batches written since (``token_batch.version`` > its version), not the
     whole history (docs/scaling.md, "Checkpoints"). Once batches below it are deleted (alembic 0007)
     it is part of the model's truth; while every batch since version 0 is kept, ``contextweb models

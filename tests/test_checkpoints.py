@@ -282,3 +282,125 @@ def test_replaying_batches_keeps_the_last_context_of_each_token_and_refuses_gaps
         lda_repository.unpack_batch(
             3, 3, 0, 2, lda_repository.pack_batch(np.array([1]), np.array([0]), np.zeros(0), np.zeros(0))
         )
+
+
+def _checkpoint_row(engine: Engine, model_id: str) -> tuple[int, int] | None:
+    """(version, compacted_version) of the model's checkpoint row, or None."""
+    with engine.connect() as connection:
+        row = connection.execute(
+            text("SELECT version, compacted_version FROM incremental_lda_checkpoint WHERE model_id = :m"),
+            {"m": model_id},
+        ).first()
+    return None if row is None else (int(row[0]), int(row[1]))
+
+
+def _batch_count(engine: Engine, model_id: str) -> int:
+    with engine.connect() as connection:
+        return int(
+            connection.execute(
+                text("SELECT count(*) FROM token_batch WHERE model_id = :m"), {"m": model_id}
+            ).scalar_one()
+        )
+
+
+def _refuse_checkpoints(engine: Engine) -> None:
+    """The database refuses every checkpoint row (a trigger): what a disk too full for the
+    checkpoint's megabytes, while a scene's few rows still fit, looks like to the server."""
+    statements = (
+        [
+            (
+                "CREATE FUNCTION refuse_checkpoint() RETURNS trigger LANGUAGE plpgsql AS $$ BEGIN "
+                "RAISE EXCEPTION 'checkpoints refused'; END $$"
+            ),
+            (
+                "CREATE TRIGGER refuse_checkpoint BEFORE INSERT OR UPDATE ON incremental_lda_checkpoint "
+                "FOR EACH ROW EXECUTE FUNCTION refuse_checkpoint()"
+            ),
+        ]
+        if engine.dialect.name == "postgresql"
+        else [
+            f"CREATE TRIGGER refuse_checkpoint_{event.lower()} BEFORE {event} ON incremental_lda_checkpoint "
+            "BEGIN SELECT RAISE(ABORT, 'checkpoints refused'); END"
+            for event in ("INSERT", "UPDATE")
+        ]
+    )
+    with engine.begin() as connection:
+        for statement in statements:
+            connection.execute(text(statement))
+
+
+def _accept_checkpoints(engine: Engine) -> None:
+    with engine.begin() as connection:
+        if engine.dialect.name == "postgresql":
+            connection.execute(text("DROP TRIGGER IF EXISTS refuse_checkpoint ON incremental_lda_checkpoint"))
+            connection.execute(text("DROP FUNCTION IF EXISTS refuse_checkpoint()"))
+        else:
+            for event in ("insert", "update"):
+                connection.execute(text(f"DROP TRIGGER IF EXISTS refuse_checkpoint_{event}"))
+
+
+def test_a_checkpoint_the_database_refuses_leaves_its_scene_acknowledged_and_the_next_one_is_stored(
+    database_url: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A checkpoint is stored after its scene's commit, in a transaction of its own: when the
+    database refuses it, the scene is still a 201 and stored, nothing is compacted, the log says
+    so, and the next interval's checkpoint is stored and compacts as usual. A model restarted
+    meanwhile loads from the batches and answers as an uninterrupted twin."""
+    scenes = concept_scenes(2 * INTERVAL + 3, seed=8)
+    settings = make_settings(database_url, checkpoint_interval=INTERVAL)
+    engine = create_database_engine(database_url)
+    try:
+        with TestClient(create_app(settings)) as client:
+            twin = _create(client)
+            expected = _post(client, twin, scenes)
+            model_id = _create(client)
+            _refuse_checkpoints(engine)
+            try:
+                caplog.set_level("WARNING", logger="contextweb")
+                before = _post(client, model_id, scenes[: INTERVAL + 2])  # scene 7 takes a checkpoint: refused
+            finally:
+                _accept_checkpoints(engine)
+            refused = [r.getMessage() for r in caplog.records if "was not stored" in r.getMessage()]
+            assert len(refused) == 1 and "checkpoints refused" in refused[0], refused
+            assert _checkpoint_row(engine, model_id) is None
+            assert check_model_problems(engine, model_id) == []
+        with TestClient(create_app(settings)) as client:  # a start with no checkpoint: every batch replayed
+            after = _post(client, model_id, scenes[INTERVAL + 2 :])  # scene 14 takes the next one
+        assert before + after == expected
+        version, compacted = _checkpoint_row(engine, model_id) or (0, 0)
+        assert version == 2 * INTERVAL and compacted == 0  # nothing older to compact: none was stored
+        assert _start(engine, model_id).checkpoint is not None
+        assert check_model_problems(engine, model_id) == []
+    finally:
+        _accept_checkpoints(engine)
+        engine.dispose()
+
+
+def test_a_checkpoint_stored_late_never_replaces_a_newer_one_nor_compacts(database_url: str) -> None:
+    """Checkpoints are stored after their scenes' commits, so one could arrive after a newer one
+    (a stalled thread): it changes nothing, neither the row nor the batches kept."""
+    settings = make_settings(database_url, checkpoint_interval=INTERVAL)
+    engine = create_database_engine(database_url)
+    try:
+        with TestClient(create_app(settings)) as client:
+            model_id = _create(client)
+            _post(client, model_id, concept_scenes(2 * INTERVAL + 1, seed=4))
+        row, batches = _checkpoint_row(engine, model_id), _batch_count(engine, model_id)
+        assert row == (2 * INTERVAL, INTERVAL)
+        newer = _start(engine, model_id).checkpoint
+        assert newer is not None
+        older = replace(newer, version=INTERVAL)  # what the checkpoint of scene 7 would be, arriving now
+        _, write = create_session_makers(engine)
+        with unit_of_work(write) as session:
+            lda_repository.save_checkpoint(session, model_id, older, compact=True)
+        assert _checkpoint_row(engine, model_id) == row and _batch_count(engine, model_id) == batches
+        assert check_model_problems(engine, model_id) == []
+    finally:
+        engine.dispose()
+
+
+def check_model_problems(engine: Engine, model_id: str) -> list[str]:
+    """``contextweb models check``'s problems of the stored model."""
+    read, _ = create_session_makers(engine)
+    with read() as session:
+        return check_model(session, model_id)

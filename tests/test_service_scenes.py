@@ -250,8 +250,8 @@ def test_feedback_prepared_before_the_write_is_used_only_while_memory_stands_whe
 
     def learn(model: ModelRuntime, prepared: PreparedScene) -> dict:
         with model_write(state, model) as write:
-            answer, _ = learn_scene(write.session, model, write.version, prepared, None, write.locked)
-        return json.loads(answer)
+            learned = learn_scene(write.session, model, write.version, prepared, None, write.locked)
+        return json.loads(learned.answer)
 
     stale_model, fresh_model = models
     stale = prepare_scene(stale_model, read_scene(stale_model, later, None))  # then another write changes memory
@@ -283,7 +283,7 @@ def test_a_keyed_scene_in_a_write_opened_without_its_key_looks_the_key_up_itself
         with model_write(state, model) as write:  # no idempotency_key: write.locked looked none up
             assert write.locked.idempotency_key is None
             prepared = prepare_scene(model, read_scene(model, body, key))
-            answer, replayed = learn_scene(write.session, model, write.version, prepared, key, write.locked)
+            answer, replayed, _ = learn_scene(write.session, model, write.version, prepared, key, write.locked)
             write.version_saved = write.notified = not replayed
             write.unchanged = replayed
         return answer, replayed

@@ -63,20 +63,22 @@ async def post_scene(
     body_bytes: BodySizeDep,
     idempotency_key: IdempotencyKey = None,
 ) -> Response:
-    answer, replayed = await admission.run_scene(
+    answer, replayed, checkpoint = await admission.run_scene(
         model.id,
         partial(scene_service.read_scene, model, body, idempotency_key),
         partial(_learn_scene, state, model, idempotency_key),
         heavy=any(obj.raw is not None for obj in body.objects),
         body_bytes=body_bytes,
     )
+    if checkpoint is not None:  # stored before the answer, so that the scene's 201 says it was tried
+        await admission.run_follow_up(scene_service.store_checkpoint, state.write_sessions, model.id, checkpoint)
     headers = {"Idempotent-Replayed": "true"} if replayed else None
     return Response(answer, status.HTTP_201_CREATED, headers, media_type="application/json")
 
 
 def _learn_scene(
     state: AppState, model: ModelRuntime, idempotency_key: str | None, read: scene_service.ReadScene
-) -> tuple[str, bool]:
+) -> scene_service.LearnedScene:
     """On the admitted scene thread: perception before the model's lock, the learning under it. If
     another process holds the model's lock (PostgreSQL), the wait for it and the learning are
     postponed to a write thread, so this process's scenes of other models need not wait for them."""
@@ -90,15 +92,18 @@ def _write_scene(
     idempotency_key: str | None,
     prepared: scene_service.PreparedScene,
     wait: bool,
-) -> tuple[str, bool]:
-    """The prepared scene learned in one unit of work of its model (``wait``: app/deps.py ``model_write``)."""
+) -> scene_service.LearnedScene:
+    """The prepared scene learned in one unit of work of its model (``wait``: app/deps.py ``model_write``);
+    a checkpoint it took is for the route to store after the commit, outside the locks and on a
+    write thread (``Admission.run_follow_up``): packing it takes seconds at a million scenes, and
+    this scene thread is the one the process's other models wait for."""
     with model_write(state, model, wait=wait, idempotency_key=idempotency_key) as write:
-        answer, replayed = scene_service.learn_scene(
+        learned = scene_service.learn_scene(
             write.session, model, write.version, prepared, idempotency_key, write.locked, state.metrics
         )
-        write.version_saved = write.notified = write.keeps_labels = not replayed
-        write.unchanged = replayed
-    return answer, replayed
+        write.version_saved = write.notified = write.keeps_labels = not learned.replayed
+        write.unchanged = learned.replayed
+    return learned
 
 
 @router.post(

@@ -24,10 +24,11 @@ Then under the model's write lock, :func:`learn_scene`:
 4. Incremental-LDA learns the scene's active concepts (in memory);
 5. everything the update changed is written in this transaction: scene row with
    its answer, tokens, reassigned tokens, n_kw entries, new words, random state;
-   every ``checkpoint_interval``-th scene also the model's checkpoint;
+   every ``checkpoint_interval``-th scene also takes a copy of the corpus, its checkpoint;
 6. after the commit: the summary is published (by the model's writer, which also undoes
    step 4 if the write fails: app/registry.py ``ModelWriter``). The stream learns of the scene from
-   the database, on every process (app/feed.py).
+   the database, on every process (app/feed.py). A checkpoint is packed and stored by
+   :func:`store_checkpoint`, outside the locks, on a write thread, before the answer is sent.
 """
 
 from __future__ import annotations
@@ -38,11 +39,19 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from functools import partial
+from typing import NamedTuple
 
 import numpy as np
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, sessionmaker
 
-from app.errors import ContextwebError, InvalidInput, SceneNotFound, StoredDataDamaged
+from app.errors import (
+    ContextwebError,
+    InvalidInput,
+    SceneNotFound,
+    StoredDataDamaged,
+    is_storage_failure,
+    storage_failure_reason,
+)
 from app.metrics import ModelEvents
 from app.registry import ModelRuntime, jsonable
 from app.schemas.common import Page
@@ -62,16 +71,25 @@ from app.services.perception import (
 from core.context.incremental import SceneUpdate
 from core.errors import InvalidInputError
 from core.scene import SceneObject as CoreObject
-from storage.compression import DamagedAnswerError
-from storage.database import combined, pipelined
+from storage.compression import DamagedAnswerError, narrowest
+from storage.database import combined, pipelined, write_turn
 from storage.repositories import contexts as context_repository
 from storage.repositories import feed as feed_repository
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import scenes as scene_repository
 from storage.repositories.incremental_lda import LockedModel, SceneChanges, StoredCheckpoint
-from storage.unit_of_work import after_commit
+from storage.unit_of_work import after_commit, unit_of_work
 
 logger = logging.getLogger("contextweb")
+
+
+class LearnedScene(NamedTuple):
+    """What :func:`learn_scene` did: the answer (``SceneRead`` JSON), whether it was a stored one
+    (an idempotent replay), and the checkpoint the scene took, for :func:`store_checkpoint`."""
+
+    answer: str
+    replayed: bool
+    checkpoint: StoredCheckpoint | None = None
 
 
 @dataclass(frozen=True)
@@ -176,9 +194,10 @@ def learn_scene(
     idempotency_key: str | None,
     locked: LockedModel,
     metrics: ModelEvents | None = None,
-) -> tuple[str, bool]:
+) -> LearnedScene:
     """Learn the prepared scene online as the model's write ``version``; returns the answer (the
-    ``SceneRead`` JSON, stored byte for byte) and whether it is a stored one (idempotent replay).
+    ``SceneRead`` JSON, stored byte for byte), whether it is a stored one (idempotent replay), and
+    the checkpoint to store after the commit (:func:`store_checkpoint`) if the scene is one.
     ``locked``: what the write read with the model's lock (``ModelWrite.locked``): the labels of
     its contexts, and the scene stored under ``idempotency_key`` if the lock's read looked that key up.
     A learned scene stores ``version`` in its state row, sends the change notification and
@@ -193,7 +212,7 @@ def learn_scene(
         if stored is not None:
             check_retry(idempotency_key, stored.request_hash, request_hash)
             try:
-                return stored.answer, True
+                return LearnedScene(stored.answer, True)
             except DamagedAnswerError as error:
                 raise _damaged_answer(model, stored.scene_id, error, keyed=True) from error
     analysis = prepared.analysis_for(model)
@@ -208,10 +227,10 @@ def learn_scene(
     assert locked.labels is not None  # ModelWriter.transaction gives every write the labels at its version
     answer = _answer(model, update, analysis, datetime.now(UTC), locked.labels)
     answer_json = answer.model_dump_json()
-    _save(session, model, update, first_token, version, answer, answer_json, idempotency_key, request_hash)
+    checkpoint = _save(session, model, update, first_token, version, answer, answer_json, idempotency_key, request_hash)
     if metrics is not None:
         after_commit(session, partial(metrics.scene_learned, model.id, update_seconds, update.growth_checked))
-    return answer_json, False
+    return LearnedScene(answer_json, False, checkpoint)
 
 
 def infer_scene(model: ModelRuntime, body: SceneCreate, session: Session | None = None) -> SceneRead:
@@ -293,15 +312,50 @@ def _object_analysis(result: ObjectResult) -> ObjectAnalysis:
 
 
 def _checkpoint(model: ModelRuntime, version: int) -> StoredCheckpoint:
-    """The model's corpus as it stands after the write ``version`` (its checkpoint)."""
+    """The model's corpus as it stands after the write ``version`` (its checkpoint): copies, in
+    their narrowest types (0.1 s at a million scenes), that the model's later scenes cannot change
+    while :func:`store_checkpoint` packs and stores them outside the locks."""
     state = model.incremental_lda.lda_state
     return StoredCheckpoint(
         version=version,
         context_count=state.n_contexts,
         word_count=state.vocab_size,
-        words=state.words,
-        contexts=state.assignments,
-        doc_offsets=state.doc_offsets,
+        words=narrowest(state.words),
+        contexts=narrowest(state.assignments),
+        doc_offsets=state.doc_offsets.copy(),
+    )
+
+
+def store_checkpoint(write_sessions: sessionmaker[Session], model_id: str, checkpoint: StoredCheckpoint) -> None:
+    """Store a checkpoint taken by a learned scene (:class:`LearnedScene`), after that scene's
+    commit and outside the model's lock: packing it takes seconds at a million scenes, which held
+    the model's writes (on SQLite every model's) when it ran in the scene's transaction. The
+    transaction takes the database's write lock only for the row's statements.
+
+    The scene is stored and acknowledged whatever happens here: a checkpoint that cannot be
+    stored is logged and left to the next interval (a start then replays the batches since the
+    previous checkpoint, which compaction keeps until a newer checkpoint is stored)."""
+    started = time.perf_counter()
+    try:
+        packed = lda_repository.pack_checkpoint(checkpoint)
+        with write_turn(write_sessions), unit_of_work(write_sessions) as session:
+            lda_repository.save_checkpoint(session, model_id, packed, compact=True)
+    except Exception as error:  # noqa: BLE001 - the acknowledged scene stands; the next checkpoint retries
+        logger.warning(
+            "model %s: the checkpoint at version %d was not stored (%s); a start replays the batches since the "
+            "previous one until the next checkpoint",
+            model_id,
+            checkpoint.version,
+            storage_failure_reason(error) if is_storage_failure(error) else f"{type(error).__name__}: {error}",
+        )
+        return
+    logger.info(
+        "model %s: checkpoint at version %d stored (%d scenes, %.1f MB) in %.2f s",
+        model_id,
+        checkpoint.version,
+        checkpoint.scene_count,
+        len(packed.arrays) / 1e6,
+        time.perf_counter() - started,
     )
 
 
@@ -350,27 +404,30 @@ def _save(
     answer_json: str,
     idempotency_key: str | None,
     request_hash: bytes | None,
-) -> None:
+) -> StoredCheckpoint | None:
+    """The scene's rows, in one round trip with its commit; every ``checkpoint_interval``-th scene
+    also returns the model's checkpoint at ``version``, which :func:`store_checkpoint` stores after
+    the commit."""
     first_word = len(model.word_kinds) - len(update.vocabulary_additions)
     # PostgreSQL: the scene's statements in one round trip, with its notification and the commit;
     # its rows and the notification as one statement (they touch different rows: ``combined``).
-    with pipelined(session, commit=True):
-        with combined(session):
-            _save_rows(
-                session,
-                model,
-                update,
-                first_token,
-                first_word,
-                version,
-                answer,
-                answer_json,
-                idempotency_key,
-                request_hash,
-            )
-            feed_repository.notify_change(session, model.id)
-        if (update.scene_index + 1) % model.checkpoint_interval == 0:
-            lda_repository.save_checkpoint(session, model.id, _checkpoint(model, version), compact=True)
+    with pipelined(session, commit=True), combined(session):
+        _save_rows(
+            session,
+            model,
+            update,
+            first_token,
+            first_word,
+            version,
+            answer,
+            answer_json,
+            idempotency_key,
+            request_hash,
+        )
+        feed_repository.notify_change(session, model.id)
+    if (update.scene_index + 1) % model.checkpoint_interval == 0:
+        return _checkpoint(model, version)
+    return None
 
 
 def _save_rows(

@@ -411,30 +411,59 @@ def load_assignments(session: Session, model_id: str) -> StoredAssignments:
     )
 
 
-def save_checkpoint(session: Session, model_id: str, checkpoint: StoredCheckpoint, *, compact: bool = False) -> None:
-    """Replace the model's checkpoint (in the caller's transaction: the scene's, or a repair's).
+@dataclass(frozen=True)
+class PackedCheckpoint:
+    """A :class:`StoredCheckpoint` as the checkpoint row stores it: its counts and its arrays' blob."""
+
+    version: int
+    scene_count: int
+    token_count: int
+    context_count: int
+    word_count: int
+    arrays: bytes
+
+
+def pack_checkpoint(checkpoint: StoredCheckpoint) -> PackedCheckpoint:
+    """The checkpoint's arrays packed (storage/compression.py ``pack_arrays``): no database work,
+    and seconds at a million scenes, so a scene's checkpoint is packed outside every lock."""
+    lengths = np.diff(checkpoint.doc_offsets)
+    return PackedCheckpoint(
+        version=checkpoint.version,
+        scene_count=checkpoint.scene_count,
+        token_count=checkpoint.token_count,
+        context_count=checkpoint.context_count,
+        word_count=checkpoint.word_count,
+        arrays=pack_arrays({"words": checkpoint.words, "contexts": checkpoint.contexts, "scene_lengths": lengths}),
+    )
+
+
+def save_checkpoint(
+    session: Session, model_id: str, checkpoint: StoredCheckpoint | PackedCheckpoint, *, compact: bool = False
+) -> None:
+    """Replace the model's checkpoint (in the caller's transaction: a scene's own, after its
+    commit, or a repair's).
 
     ``compact`` (a scheduled checkpoint) also deletes the model's batches at or below the replaced
     checkpoint's version and records that version as ``compacted_version``: a process up to one
     checkpoint interval behind still catches up from the batches kept, one further behind
-    reloads (:class:`BehindCompactionError`). Otherwise (a repair) no batch is deleted and the
-    mark is kept. Statements only, no read: the scene's statements are pipelined on PostgreSQL.
+    reloads (:class:`BehindCompactionError`). A compacting checkpoint replaces only an older one
+    (one written late, after a newer one, changes nothing: neither the row nor the batches).
+    Otherwise (a repair) no batch is deleted and the mark is kept. Statements only, no read.
     """
+    packed = checkpoint if isinstance(checkpoint, PackedCheckpoint) else pack_checkpoint(checkpoint)
     driver = DriverStatements(session)
     if compact:
-        driver.execute(_DELETE_COMPACTED_BATCHES, (model_id, model_id))
-    lengths = np.diff(checkpoint.doc_offsets)
-    blob = pack_arrays({"words": checkpoint.words, "contexts": checkpoint.contexts, "scene_lengths": lengths})
+        driver.execute(_DELETE_COMPACTED_BATCHES, (model_id, model_id, packed.version))
     driver.execute(
         _UPSERT_CHECKPOINT_COMPACTING if compact else _UPSERT_CHECKPOINT,
         (
             model_id,
-            checkpoint.version,
-            checkpoint.scene_count,
-            checkpoint.token_count,
-            checkpoint.context_count,
-            checkpoint.word_count,
-            blob,
+            packed.version,
+            packed.scene_count,
+            packed.token_count,
+            packed.context_count,
+            packed.word_count,
+            packed.arrays,
             driver.bind(_CHECKPOINT_TABLE.c.created_at)(utc_now()),
         ),
     )
@@ -443,7 +472,7 @@ def save_checkpoint(session: Session, model_id: str, checkpoint: StoredCheckpoin
 _CHECKPOINT_TABLE = IncrementalLdaCheckpoint.__table__
 _DELETE_COMPACTED_BATCHES = (
     "DELETE FROM token_batch WHERE model_id = ? "
-    "AND version <= (SELECT version FROM incremental_lda_checkpoint WHERE model_id = ?)"
+    "AND version <= (SELECT version FROM incremental_lda_checkpoint WHERE model_id = ? AND version < ?)"
 )
 # ``compacted_version = incremental_lda_checkpoint.version``: the replaced row's version (SET reads the
 # row as it was), the one the batches were just deleted up to.
@@ -454,7 +483,10 @@ _UPSERT_CHECKPOINT = (
     "token_count = excluded.token_count, context_count = excluded.context_count, "
     "word_count = excluded.word_count, arrays = excluded.arrays, created_at = excluded.created_at"
 )
-_UPSERT_CHECKPOINT_COMPACTING = _UPSERT_CHECKPOINT + ", compacted_version = incremental_lda_checkpoint.version"
+_UPSERT_CHECKPOINT_COMPACTING = (
+    _UPSERT_CHECKPOINT
+    + ", compacted_version = incremental_lda_checkpoint.version WHERE incremental_lda_checkpoint.version < excluded.version"
+)
 
 
 def compacted_version(session: Session, model_id: str) -> int:

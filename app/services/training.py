@@ -135,6 +135,7 @@ class PreparedFit(NamedTuple):
 
     object_count: int
     last_object_id: int
+    fitted_at: datetime
     fitted: FittedPerception
     answer: FitRead
     prototypes_state: dict[str, object]
@@ -176,6 +177,7 @@ def prepare_fit(session: Session, model: ModelRuntime, body: FitCreate) -> Prepa
     return PreparedFit(
         object_count=len(objects),
         last_object_id=objects[-1].id,
+        fitted_at=fitted_at,
         fitted=FittedPerception(Perception(vocabulary, prototypes, concept_web), effects, fitted_at),
         answer=FitRead(
             model_id=model.id,
@@ -205,7 +207,7 @@ def fit(session: Session, model: ModelRuntime, body: FitCreate, prepared: Prepar
         model.id,
         prototypes=prepared.prototypes_state,
         concept_web=prepared.concept_web_state,
-        fitted_at=prepared.fitted.fitted_at,
+        fitted_at=prepared.fitted_at,
     )
     model.writer.install_fit(prepared.fitted)
     return prepared.answer

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -87,6 +88,7 @@ def test_scene_by_scene_writes_reload_to_the_same_corpus(engine: Engine) -> None
     read, _ = create_session_makers(engine)
     with read() as session:
         stored = lda_repository.load_assignments(session, "m")
+        assert stored.words.dtype == stored.contexts.dtype == stored.scenes.dtype == np.int32
         start = lda_repository.load_start(session, "m")
         assert lda_repository.stored_counts(session, "m") == lda_repository.assignment_counts(session, "m")
         batches = session.execute(text("SELECT count(*) FROM token_batch WHERE model_id = 'm'")).scalar_one()
@@ -218,3 +220,19 @@ def test_catching_up_reads_a_range_of_the_batches_primary_key(
     nodes = _plan_nodes(plan[0]["Plan"])
     assert {node["Node Type"] for node in nodes} <= {"Sort", "Index Scan", "Bitmap Heap Scan", "Bitmap Index Scan"}
     assert [node.get("Index Name") for node in nodes if "Index" in node["Node Type"]] == ["pk_token_batch"]
+
+
+@pytest.mark.parametrize(
+    ("contexts", "words"),
+    [
+        (np.random.default_rng(3).integers(0, 7, 5_000), np.random.default_rng(4).integers(0, 300, 5_000)),
+        (np.array([0, -1, 2, 2]), np.array([1, 1, 3, 3])),  # a negative context: damaged tokens
+        (np.array([0, 2**40, 0]), np.array([5, 5, 5])),  # beyond any count table: damaged tokens
+        (np.array([], dtype=np.int64), np.array([], dtype=np.int64)),
+    ],
+)
+def test_token_counts_are_the_pairs_counts_whatever_the_ids(contexts: np.ndarray, words: np.ndarray) -> None:
+    """n_kw from tokens (``models check``'s right-hand side): one pass where the ids fit a table,
+    the sort otherwise; the same counts either way."""
+    tokens = lda_repository.StoredAssignments(words=words, contexts=contexts, scenes=np.zeros_like(words))
+    assert lda_repository.token_counts(tokens) == dict(Counter(zip(contexts.tolist(), words.tolist(), strict=True)))

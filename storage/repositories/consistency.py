@@ -65,6 +65,7 @@ from storage.repositories.incremental_lda import (
     load_checkpoint,
     replay_batches,
     save_checkpoint,
+    token_counts,
     unpack_batch,
 )
 
@@ -602,14 +603,6 @@ def _count(total: int, noun: str) -> str:
 # The n_kw entries.
 
 
-def _token_counts(tokens: StoredAssignments) -> dict[tuple[int, int], int]:
-    """n_kw of the tokens: {(context, word): count} of the nonzero entries."""
-    if tokens.words.size == 0:
-        return {}
-    keys, counts = np.unique(np.stack([tokens.contexts, tokens.words], axis=1), axis=0, return_counts=True)
-    return {(int(k), int(w)): int(n) for (k, w), n in zip(keys, counts, strict=True)}
-
-
 def _count_differences(session: Session, model_id: str, tokens: StoredAssignments) -> list[tuple[int, int, int, int]]:
     """(context, word, stored, tokens) of every entry whose stored count differs from the tokens', in order."""
     stored = {
@@ -620,7 +613,7 @@ def _count_differences(session: Session, model_id: str, tokens: StoredAssignment
             )
         ).all()
     }
-    counted = _token_counts(tokens)
+    counted = token_counts(tokens)
     return [
         (k, w, stored.get((k, w), 0), counted.get((k, w), 0))
         for k, w in sorted(set(stored) | set(counted))
@@ -716,7 +709,7 @@ def _rewrite_counts(
     session.execute(
         update(ContextWordCount).where(ContextWordCount.model_id == model_id).values(count=0, version=version)
     )
-    counted = _token_counts(tokens)
+    counted = token_counts(tokens)
     if counted:
         session.execute(
             _UPSERT_COUNT,

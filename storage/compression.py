@@ -42,6 +42,7 @@ import struct
 import zlib
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -149,10 +150,36 @@ def decompress_answer(stored: bytes) -> str:
 
 
 def pack_arrays(arrays: dict[str, np.ndarray]) -> bytes:
-    """Integer arrays as one deflated ``.npz`` blob, each in the smallest type that holds its values."""
-    buffer = io.BytesIO()
-    np.savez(buffer, allow_pickle=False, **{name: narrowest(array) for name, array in arrays.items()})
-    return zlib.compress(buffer.getvalue(), 1)
+    """Integer arrays as one deflated ``.npz`` blob, each in the smallest type that holds its values.
+
+    The ``.npz`` is deflated as numpy writes it, 16 MiB at a time (:class:`_Deflating`), never
+    whole in memory: a million-scene checkpoint's 127 MB archive was copied twice with the GIL
+    held (into a buffer, then out of it), which a process's scene threads waited for while it was
+    packed beside them (app/services/scenes.py ``store_checkpoint``)."""
+    deflating = _Deflating()
+    np.savez(deflating, allow_pickle=False, **{name: _in_narrowest(array) for name, array in arrays.items()})
+    return deflating.blob()
+
+
+class _Deflating(io.RawIOBase):
+    """A write-only stream that deflates (zlib, level 1) what is written to it, as it comes: not
+    seekable, so ``zipfile`` writes the archive's sizes after each entry's data."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._compressor = zlib.compressobj(1)
+        self._parts: list[bytes] = []
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, data: Any) -> int:
+        view = memoryview(data)
+        self._parts.append(self._compressor.compress(view))
+        return view.nbytes
+
+    def blob(self) -> bytes:
+        return b"".join([*self._parts, self._compressor.flush()])
 
 
 def unpack_arrays(blob: bytes) -> dict[str, np.ndarray]:
@@ -168,14 +195,25 @@ def unpack_arrays(blob: bytes) -> dict[str, np.ndarray]:
 def narrowest(array: np.ndarray) -> np.ndarray:
     """A copy of integer ``array`` in the narrowest integer type that holds its values (unsigned when none is negative)."""
     values = np.asarray(array)
+    return values.astype(_narrowest_type(values))
+
+
+def _in_narrowest(array: np.ndarray) -> np.ndarray:
+    """``array`` itself if it is already in its narrowest type, else :func:`narrowest`'s copy."""
+    values = np.asarray(array)
+    narrow = _narrowest_type(values)
+    return values if values.dtype == narrow else values.astype(narrow)
+
+
+def _narrowest_type(values: np.ndarray) -> type[np.integer[Any]]:
     if values.size == 0:
-        return values.astype(np.uint8)
+        return np.uint8
     low, high = int(values.min()), int(values.max())
     for dtype in (np.uint8, np.uint16, np.uint32) if low >= 0 else (np.int8, np.int16, np.int32):
         info = np.iinfo(dtype)
         if info.min <= low and high <= info.max:
-            return values.astype(dtype)
-    return values.astype(np.int64)
+            return dtype
+    return np.int64
 
 
 #: Format bytes of :func:`pack_small_arrays`: the arrays as they are, or raw-deflated (the shorter).

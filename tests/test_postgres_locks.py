@@ -31,6 +31,11 @@ pytestmark = pytest.mark.postgres
 HOLD_SECONDS = 4.0
 #: B's scenes must each be answered within this while A's lock is held elsewhere (they take milliseconds).
 PROMPT_SECONDS = 1.5
+#: Scenes each model learns before the lock: past FAST_HYPERPARAMETERS' scheduled growth checks after
+#: scenes 1, 2, 3 and 6, so that B's timed scenes (up to the one before the check after scene 12)
+#: time the lock's independence, not a growth check (one took 2.25 s in a loaded suite run).
+LEARNED_BEFORE = 6
+NEXT_GROWTH_CHECK = 11
 
 
 def test_a_lock_held_elsewhere_stalls_its_model_only(tmp_path: Path) -> None:
@@ -40,7 +45,7 @@ def test_a_lock_held_elsewhere_stalls_its_model_only(tmp_path: Path) -> None:
         models = {name: create_model(server.base_url, FAST_HYPERPARAMETERS, name=name) for name in "ab"}
         with server.client(timeout=30) as client:
             for name in "ab":
-                for post in posts[name][:3]:
+                for post in posts[name][:LEARNED_BEFORE]:
                     assert post_keyed_once(client, models[name], post).status_code == 201
         outside = psycopg.connect(libpq_url(url), autocommit=False)
         try:
@@ -50,7 +55,7 @@ def test_a_lock_held_elsewhere_stalls_its_model_only(tmp_path: Path) -> None:
 
             def post_to_a() -> None:
                 with server.client(timeout=30) as own:
-                    waited["status"] = post_keyed_once(own, models["a"], posts["a"][3]).status_code
+                    waited["status"] = post_keyed_once(own, models["a"], posts["a"][LEARNED_BEFORE]).status_code
                     waited["seconds"] = time.monotonic() - locked_at
 
             blocked = threading.Thread(target=post_to_a)
@@ -58,7 +63,7 @@ def test_a_lock_held_elsewhere_stalls_its_model_only(tmp_path: Path) -> None:
             time.sleep(0.5)  # A's scene is on the server, waiting for the lock
             prompt: list[float] = []
             with server.client(timeout=30) as client:
-                for post in posts["b"][3:]:
+                for post in posts["b"][LEARNED_BEFORE:NEXT_GROWTH_CHECK]:
                     started = time.monotonic()
                     assert post_keyed_once(client, models["b"], post).status_code == 201, post.statuses
                     prompt.append(time.monotonic() - started)
@@ -74,7 +79,7 @@ def test_a_lock_held_elsewhere_stalls_its_model_only(tmp_path: Path) -> None:
         assert waited["seconds"] >= HOLD_SECONDS - 0.5, waited
         assert len(prompt) >= 3 and max(prompt) < PROMPT_SECONDS, f"B's scenes took {prompt} s while A waited"
         with server.client(timeout=30) as client:
-            for post in posts["a"][4:6]:
+            for post in posts["a"][LEARNED_BEFORE + 1 : LEARNED_BEFORE + 3]:
                 assert post_keyed_once(client, models["a"], post).status_code == 201
         for name in "ab":
             sent = [post for post in posts[name] if post.statuses]

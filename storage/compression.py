@@ -157,7 +157,7 @@ def pack_arrays(arrays: dict[str, np.ndarray]) -> bytes:
     held (into a buffer, then out of it), which a process's scene threads waited for while it was
     packed beside them (app/services/scenes.py ``store_checkpoint``)."""
     deflating = _Deflating()
-    np.savez(deflating, allow_pickle=False, **{name: _in_narrowest(array) for name, array in arrays.items()})
+    np.savez(deflating, allow_pickle=False, **{name: narrowest(array, copy=False) for name, array in arrays.items()})
     return deflating.blob()
 
 
@@ -192,17 +192,11 @@ def unpack_arrays(blob: bytes) -> dict[str, np.ndarray]:
         raise ValueError(f"not a packed array blob ({type(error).__name__}: {error})") from error
 
 
-def narrowest(array: np.ndarray) -> np.ndarray:
-    """A copy of integer ``array`` in the narrowest integer type that holds its values (unsigned when none is negative)."""
+def narrowest(array: np.ndarray, *, copy: bool = True) -> np.ndarray:
+    """Integer ``array`` in the narrowest integer type that holds its values (unsigned when none is
+    negative): always a copy, or with ``copy=False`` the array itself when it is already in that type."""
     values = np.asarray(array)
-    return values.astype(_narrowest_type(values))
-
-
-def _in_narrowest(array: np.ndarray) -> np.ndarray:
-    """``array`` itself if it is already in its narrowest type, else :func:`narrowest`'s copy."""
-    values = np.asarray(array)
-    narrow = _narrowest_type(values)
-    return values if values.dtype == narrow else values.astype(narrow)
+    return values.astype(_narrowest_type(values), copy=copy)
 
 
 def _narrowest_type(values: np.ndarray) -> type[np.integer[Any]]:
@@ -230,7 +224,7 @@ def pack_small_arrays(arrays: Sequence[np.ndarray]) -> bytes:
     header, each array is in its narrowest unsigned type, and the whole is raw-deflated when that
     is shorter (the same scene: 190 bytes). The arrays come back in order, in their stored types.
     """
-    narrow = [narrowest(np.asarray(array)) for array in arrays]
+    narrow = [narrowest(array, copy=False) for array in arrays]
     if any(array.ndim != 1 or array.dtype.kind != "u" for array in narrow):
         raise ValueError("pack_small_arrays stores one-dimensional non-negative integer arrays only")
     header = bytes([len(narrow)]) + b"".join(_SMALL_HEADER.pack(a.shape[0], a.dtype.itemsize) for a in narrow)

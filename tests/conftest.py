@@ -26,16 +26,19 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine, create_engine, text
 
 from app.main import create_app
+from app.registry import ModelRuntime
 from app.schemas.observations import RawObject as ServiceRawObject
 from app.services.perception import raw_recording
 from app.services.warmup import warm_up_kernels
 from app.settings import Settings
+from app.state import AppState
 from core.features.layout import EFFECT_LAYOUT, EFFECT_SIZE, ENTITY_SIZE
 from core.payloads import ObjectRecording
 from sim.world import World
-from storage.database import create_database_engine
+from storage.database import create_database_engine, create_session_makers
 from storage.migrations import upgrade_to_head
 from storage.models import Base
+from storage.repositories.consistency import check_model
 
 # The paper world, its concept web and its context model as fixtures (tests/paper_feedback.py).
 pytest_plugins = ["tests.paper_feedback"]
@@ -261,3 +264,18 @@ def decoded_recording(raw: Any) -> ObjectRecording:
     """What the service makes of a raw object a bridge tool encoded (``bridge.models.RawObject``): its
     schema, then its decoding into ``core.payloads``."""
     return raw_recording(ServiceRawObject.model_validate(raw.model_dump(mode="json")), "raw")
+
+
+def state_and_model(client: TestClient, model_id: str) -> tuple[AppState, ModelRuntime]:
+    """A test app's state and one of its models in memory."""
+    state: AppState = client.app_state["contextweb"]
+    model = state.registry.get(model_id)
+    assert model is not None
+    return state, model
+
+
+def stored_problems(engine: Engine, model_id: str) -> list[str]:
+    """``contextweb models check``'s storage problems of the stored model."""
+    read, _ = create_session_makers(engine)
+    with read() as session:
+        return check_model(session, model_id)

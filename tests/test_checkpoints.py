@@ -20,7 +20,7 @@ from storage.database import create_database_engine, create_session_makers
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories.consistency import check_model, repair_model
 from storage.unit_of_work import unit_of_work
-from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, make_settings
+from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, make_settings, stored_problems
 
 #: Small enough that 24 scenes cross three checkpoints (after scenes 7, 14 and 21) and leave a tail of 3
 #: that ends with a scheduled growth check (FAST_HYPERPARAMETERS: after scenes 1, 2, 3, 6, 12, 24, ...),
@@ -363,14 +363,14 @@ def test_a_checkpoint_the_database_refuses_leaves_its_scene_acknowledged_and_the
             refused = [r.getMessage() for r in caplog.records if "was not stored" in r.getMessage()]
             assert len(refused) == 1 and "checkpoints refused" in refused[0], refused
             assert _checkpoint_row(engine, model_id) is None
-            assert check_model_problems(engine, model_id) == []
+            assert stored_problems(engine, model_id) == []
         with TestClient(create_app(settings)) as client:  # a start with no checkpoint: every batch replayed
             after = _post(client, model_id, scenes[INTERVAL + 2 :])  # scene 14 takes the next one
         assert before + after == expected
         version, compacted = _checkpoint_row(engine, model_id) or (0, 0)
         assert version == 2 * INTERVAL and compacted == 0  # nothing older to compact: none was stored
         assert _start(engine, model_id).checkpoint is not None
-        assert check_model_problems(engine, model_id) == []
+        assert stored_problems(engine, model_id) == []
     finally:
         _accept_checkpoints(engine)
         engine.dispose()
@@ -394,13 +394,6 @@ def test_a_checkpoint_stored_late_never_replaces_a_newer_one_nor_compacts(databa
         with unit_of_work(write) as session:
             lda_repository.save_checkpoint(session, model_id, older, compact=True)
         assert _checkpoint_row(engine, model_id) == row and _batch_count(engine, model_id) == batches
-        assert check_model_problems(engine, model_id) == []
+        assert stored_problems(engine, model_id) == []
     finally:
         engine.dispose()
-
-
-def check_model_problems(engine: Engine, model_id: str) -> list[str]:
-    """``contextweb models check``'s problems of the stored model."""
-    read, _ = create_session_makers(engine)
-    with read() as session:
-        return check_model(session, model_id)

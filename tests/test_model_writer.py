@@ -19,18 +19,11 @@ from app.registry import FittedPerception, ModelRuntime, load_runtime
 from app.services.perception import Perception
 from app.state import AppState
 from storage.repositories import models as model_repository
-from tests.conftest import concept_scenes
+from tests.conftest import concept_scenes, state_and_model
 
 
 class WriteFailed(Exception):
     """The failure the test causes inside the write, after memory changed."""
-
-
-def _state_and_model(client: TestClient, model_id: str) -> tuple[AppState, ModelRuntime]:
-    state: AppState = client.app_state["contextweb"]
-    model = state.registry.get(model_id)
-    assert model is not None
-    return state, model
 
 
 def _assert_memory_equals_database(state: AppState, model: ModelRuntime) -> None:
@@ -46,7 +39,7 @@ def _assert_memory_equals_database(state: AppState, model: ModelRuntime) -> None
 
 
 def test_a_change_outside_a_write_is_refused(client: TestClient, model_id: str) -> None:
-    _, model = _state_and_model(client, model_id)
+    _, model = state_and_model(client, model_id)
     scenes_before = model.incremental_lda.n_scenes
     with pytest.raises(RuntimeError, match="outside a write"):
         model.writer.learn_scene(["cup", "plate"], lambda _: None)
@@ -60,7 +53,7 @@ def test_a_scene_write_that_fails_after_learning_is_taken_back_exactly(client: T
     database, the model serves on, and the next scene gets the id the failed one had."""
     for scene in concept_scenes(3, seed=5):
         assert client.post(f"/v1/models/{model_id}/scenes", json=scene).status_code == 201
-    state, model = _state_and_model(client, model_id)
+    state, model = state_and_model(client, model_id)
     learned_before, kinds_before = model.incremental_lda, list(model.word_kinds)
     with pytest.raises(WriteFailed), model.writer.transaction(state.write_sessions, state.registry):
         model.writer.learn_scene(["cup", "plate", "a-new-word"], lambda _: "noun")
@@ -81,7 +74,7 @@ def test_a_failed_write_that_changed_more_than_one_scene_is_reloaded(client: Tes
     from the database at once (it answers), and memory equals it."""
     for scene in concept_scenes(3, seed=5):
         assert client.post(f"/v1/models/{model_id}/scenes", json=scene).status_code == 201
-    state, model = _state_and_model(client, model_id)
+    state, model = state_and_model(client, model_id)
     learned_before = model.incremental_lda
     with pytest.raises(WriteFailed), model.writer.transaction(state.write_sessions, state.registry):
         model.writer.learn_scene(["cup", "plate"], lambda _: "noun")
@@ -95,7 +88,7 @@ def test_a_failed_write_that_changed_more_than_one_scene_is_reloaded(client: Tes
 
 
 def test_changes_that_wait_for_the_commit_are_dropped_with_it(client: TestClient, model_id: str) -> None:
-    state, model = _state_and_model(client, model_id)
+    state, model = state_and_model(client, model_id)
     fitted, count, learned = model.fitted, model.training_object_count, model.incremental_lda
     replacement = FittedPerception(Perception(model.vocabulary))
     with pytest.raises(WriteFailed), model.writer.transaction(state.write_sessions, state.registry):
@@ -116,7 +109,7 @@ def test_a_failed_check_is_repeated_when_the_version_moves_or_after_a_doubling_b
 ) -> None:
     """A model whose stored state failed its check is loaded again at once when its stored version
     moves, and at the same version only after the recheck backoff, which doubles up to its cap."""
-    _, model = _state_and_model(client, model_id)
+    _, model = state_and_model(client, model_id)
     writer = model.writer
     monkeypatch.setattr(registry, "FAILED_CHECK_RECHECK_SECONDS", 0.05)
     monkeypatch.setattr(registry, "FAILED_CHECK_RECHECK_MAX_SECONDS", 0.15)

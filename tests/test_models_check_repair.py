@@ -13,9 +13,9 @@ from app.cli import main
 from storage.database import create_session_makers
 from storage.models import IncrementalLdaState
 from storage.repositories import incremental_lda as lda_repository
-from storage.repositories.consistency import UnrepairableModelError, check_model, find_problems, repair_model
+from storage.repositories.consistency import UnrepairableModelError, find_problems, repair_model
 from storage.unit_of_work import unit_of_work
-from tests.conftest import concept_scenes
+from tests.conftest import concept_scenes, stored_problems
 
 
 @pytest.fixture
@@ -35,12 +35,6 @@ def _execute(engine: Engine, statement: str, **parameters: Any) -> None:
 def _one(engine: Engine, statement: str, **parameters: Any) -> Any:
     with engine.connect() as connection:
         return connection.execute(text(statement), parameters).one()
-
-
-def _check(engine: Engine, model_id: str) -> list[str]:
-    read, _ = create_session_makers(engine)
-    with read() as session:
-        return check_model(session, model_id)
 
 
 def _repair(engine: Engine, model_id: str) -> list[str]:
@@ -99,7 +93,7 @@ def _damage_batch(
 
 
 def test_a_sound_model_checks_clean(engine: Engine, model_id: str, learned_model: str) -> None:
-    assert _check(engine, learned_model) == []
+    assert stored_problems(engine, learned_model) == []
     scene_count, batches, token_count = _one(
         engine,
         "SELECT (SELECT scene_count FROM incremental_lda_state WHERE model_id = :m), "
@@ -111,8 +105,8 @@ def test_a_sound_model_checks_clean(engine: Engine, model_id: str, learned_model
 
 
 def test_a_model_without_scenes_checks_clean_and_an_unknown_one_does_not(engine: Engine, model_id: str) -> None:
-    assert _check(engine, model_id) == []
-    assert _check(engine, "nosuchmodel") == ["model 'nosuchmodel' is not stored"]
+    assert stored_problems(engine, model_id) == []
+    assert stored_problems(engine, "nosuchmodel") == ["model 'nosuchmodel' is not stored"]
 
 
 def test_a_corrupted_count_is_named_and_repaired(engine: Engine, learned_model: str) -> None:
@@ -124,7 +118,7 @@ def test_a_corrupted_count_is_named_and_repaired(engine: Engine, learned_model: 
         k=entry.context,
         w=entry.word_id,
     )
-    assert _check(engine, learned_model) == [
+    assert stored_problems(engine, learned_model) == [
         (
             f"context_word_count differs from the token assignments at 1 entry, first (context {entry.context}, "
             f"word {entry.word_id}): stored {entry.count + 2}, tokens {entry.count}"
@@ -134,7 +128,7 @@ def test_a_corrupted_count_is_named_and_repaired(engine: Engine, learned_model: 
     changes = _repair(engine, learned_model)
     assert any(change.startswith("context_word_count: ") and "1 entry differed" in change for change in changes)
     assert changes[-1] == f"incremental_lda_state.version: {version} -> {version + 1}"
-    assert _check(engine, learned_model) == []
+    assert stored_problems(engine, learned_model) == []
     assert _version(engine, learned_model) == version + 1
     assert _first_count(engine, learned_model) == entry
     versions = _one(
@@ -172,7 +166,7 @@ def test_repair_rebuilds_missing_counts_and_the_scalar_state(engine: Engine, lea
         "SELECT context, word_id FROM context_word_count WHERE model_id = :m ORDER BY context, word_id LIMIT 1",
         m=learned_model,
     )
-    assert _check(engine, learned_model) == [
+    assert stored_problems(engine, learned_model) == [
         (
             f"context_word_count differs from the token assignments at 1 entry, first (context {entry.context}, "
             f"word {entry.word_id}): stored 0, tokens {entry.count}"
@@ -191,7 +185,7 @@ def test_repair_rebuilds_missing_counts_and_the_scalar_state(engine: Engine, lea
     changes = _repair(engine, learned_model)
     assert "incremental_lda_state.scene_count: 9 -> 12" in changes
     assert f"incremental_lda_state.context_count: 0 -> {largest + 1}" in changes
-    assert _check(engine, learned_model) == []
+    assert stored_problems(engine, learned_model) == []
 
 
 def test_repair_keeps_unbacked_entries_as_zeros_and_deletes_impossible_ones(engine: Engine, learned_model: str) -> None:
@@ -218,7 +212,7 @@ def test_repair_keeps_unbacked_entries_as_zeros_and_deletes_impossible_ones(engi
         m=learned_model,
         w=unused_word,
     )
-    assert _check(engine, learned_model) == [
+    assert stored_problems(engine, learned_model) == [
         (
             f"context_word_count differs from the token assignments at 1 entry, first (context 0, word {unused_word}): "
             "stored 5, tokens 0"
@@ -248,7 +242,7 @@ def test_repair_keeps_unbacked_entries_as_zeros_and_deletes_impossible_ones(engi
         _one(engine, "SELECT count(*) FROM context_word_count WHERE model_id = :m AND context = 50", m=learned_model)[0]
         == 0
     )
-    assert _check(engine, learned_model) == []
+    assert stored_problems(engine, learned_model) == []
 
 
 def test_rows_ahead_of_the_models_version_are_named_and_the_version_bumped_above(
@@ -262,14 +256,14 @@ def test_rows_ahead_of_the_models_version_are_named_and_the_version_bumped_above
         v=version + 7,
         last=_batch_versions(engine, learned_model)[-1],
     )
-    assert _check(engine, learned_model) == [
+    assert stored_problems(engine, learned_model) == [
         (
             f"1 token_batch row written at a version above the model's (incremental_lda_state.version {version}), "
             f"first at version {version + 7}"
         )
     ]
     assert _repair(engine, learned_model)[-1] == f"incremental_lda_state.version: {version} -> {version + 8}"
-    assert _check(engine, learned_model) == []
+    assert stored_problems(engine, learned_model) == []
 
 
 def test_a_token_gap_is_reported_and_not_repaired(engine: Engine, learned_model: str) -> None:
@@ -282,7 +276,7 @@ def test_a_token_gap_is_reported_and_not_repaired(engine: Engine, learned_model:
     )[0]
     _execute(engine, "DELETE FROM token_batch WHERE model_id = :m AND version = :v", m=learned_model, v=versions[5])
     entry = _first_count(engine, learned_model)
-    problems = _check(engine, learned_model)
+    problems = stored_problems(engine, learned_model)
     gap = next(problem for problem in problems if problem.startswith("token ids have a gap"))
     assert gap == (
         f"token ids have a gap: token_batch at version {versions[6]} starts at token {first_token}, "
@@ -294,7 +288,7 @@ def test_a_token_gap_is_reported_and_not_repaired(engine: Engine, learned_model:
     assert gap in raised.value.problems
     assert _version(engine, learned_model) == version  # nothing written, not even the counts
     assert _first_count(engine, learned_model) == entry
-    assert _check(engine, learned_model) == problems
+    assert stored_problems(engine, learned_model) == problems
 
 
 def _tokens_before(engine: Engine, model_id: str, version: int) -> int:
@@ -331,12 +325,12 @@ def test_broken_scenes_and_random_state_are_unrepairable(engine: Engine, learned
     with pytest.raises(UnrepairableModelError) as raised:
         _repair(engine, learned_model)
     assert raised.value.problems == unrepairable  # the counts are not rewritten from a damaged corpus either
-    assert _check(engine, learned_model) == [problem.message for problem in problems]
+    assert stored_problems(engine, learned_model) == [problem.message for problem in problems]
 
 
 def test_a_missing_state_row_is_unrepairable(engine: Engine, learned_model: str) -> None:
     _execute(engine, "DELETE FROM incremental_lda_state WHERE model_id = :m", m=learned_model)
-    assert _check(engine, learned_model) == ["incremental_lda_state has no row for the model"]
+    assert stored_problems(engine, learned_model) == ["incremental_lda_state has no row for the model"]
     with pytest.raises(UnrepairableModelError, match="no row for the model"):
         _repair(engine, learned_model)
     with pytest.raises(LookupError):

@@ -27,7 +27,7 @@ from sim.world import World
 from storage.database import autocommit_reads
 from storage.repositories import models as model_repository
 from storage.repositories.incremental_lda import stored_version
-from tests.conftest import synthetic_training_objects
+from tests.conftest import state_and_model, synthetic_training_objects
 from tests.test_sqlite_locks import outside_write_lock
 
 
@@ -258,13 +258,6 @@ def test_a_keyed_training_batch_retried_is_answered_again_and_adds_nothing(
     assert keyless.json() == {"added": 10, "training_object_count": 25}
 
 
-def _model_runtime(client: TestClient, model_id: str) -> tuple[AppState, ModelRuntime]:
-    state: AppState = client.app_state["contextweb"]
-    model = state.registry.get(model_id)
-    assert model is not None
-    return state, model
-
-
 def _prepared_fit(state: AppState, model: ModelRuntime) -> training_service.PreparedFit:
     """A fit computed as the fit route computes it: from one read, outside the model's write."""
     with autocommit_reads(state.read_sessions) as session:
@@ -276,7 +269,7 @@ def test_a_fit_computed_before_its_write_is_stored_only_while_its_objects_are_al
 ) -> None:
     """The fit route computes outside the model's write; the write stores that fit if no training
     object was added in between, else fits again on all of them: a fit never leaves an object out."""
-    state, model = _model_runtime(client, model_id)
+    state, model = state_and_model(client, model_id)
     first, later = training_objects, training_objects[:5]  # every concept first; then 5 objects more
     assert client.post(f"/v1/models/{model_id}/training-objects", json={"objects": first}).status_code == 201
 
@@ -304,7 +297,7 @@ def test_a_fit_is_computed_without_sqlites_write_lock(
 ) -> None:
     """A fit's computation (seconds on a large training set) reads only: on SQLite it runs while
     another connection holds the database's one write lock, which every model's writes share."""
-    state, model = _model_runtime(client, model_id)
+    state, model = state_and_model(client, model_id)
     assert client.post(f"/v1/models/{model_id}/training-objects", json={"objects": training_objects}).status_code == 201
     with outside_write_lock(Path(database_url.removeprefix("sqlite:///"))):
         prepared = _prepared_fit(state, model)

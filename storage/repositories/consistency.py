@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from sqlalchemy import (
@@ -98,15 +98,22 @@ def check_model(session: Session, model_id: str) -> list[str]:
 
 def find_problems(session: Session, model_id: str) -> list[Problem]:
     """Every problem of the stored model, each marked repairable or not."""
-    problems, _ = _find_problems(session, model_id)
-    return problems
+    return _find_problems(session, model_id).problems
 
 
-def _find_problems(session: Session, model_id: str) -> tuple[list[Problem], list[Problem]]:
-    """:func:`find_problems`, and which of them are the kept batches' (:func:`_kept_batch_problems`),
-    so that :func:`repair_model` knows whether to drop them without reading them again."""
+class _Found(NamedTuple):
+    """What :func:`_find_problems` read: every problem, those of the kept batches
+    (:func:`_kept_batch_problems`), and the tokens (None when they cannot be read), so that
+    :func:`repair_model` reads neither again."""
+
+    problems: list[Problem]
+    kept_batch_problems: list[Problem]
+    tokens: StoredAssignments | None
+
+
+def _find_problems(session: Session, model_id: str) -> _Found:
     if session.execute(select(Model.id).where(Model.id == model_id)).first() is None:
-        return [Problem(f"model {model_id!r} is not stored", repairable=False)], []
+        return _Found([Problem(f"model {model_id!r} is not stored", repairable=False)], [], None)
     hyperparameters, problems = _model_json(session, model_id)
     state = _state_row(session, model_id)
     words = _id_range(session, Word.id, Word.model_id, model_id)
@@ -130,7 +137,7 @@ def _find_problems(session: Session, model_id: str) -> tuple[list[Problem], list
         k_rule = hyperparameters.get("k_rule") if isinstance(hyperparameters, dict) else None
         max_contexts = k_rule.get("max_contexts") if isinstance(k_rule, dict) else None
         problems += _state_problems(session, model_id, state, scenes.count, words.count, max_contexts, tokens)
-    return problems, kept_batch_problems
+    return _Found(problems, kept_batch_problems, tokens)
 
 
 def _model_json(session: Session, model_id: str) -> tuple[Any, list[Problem]]:
@@ -270,15 +277,14 @@ def repair_model(session: Session, model_id: str) -> list[str]:
     if session.execute(select(Model.id).where(Model.id == model_id)).first() is None:
         raise LookupError(f"model {model_id!r} is not stored")
     state = _state_row(session, model_id, lock=True)  # the model's writers lock it too (PostgreSQL)
-    problems, kept_batch_problems = _find_problems(session, model_id)
+    problems, kept_batch_problems, tokens = _find_problems(session, model_id)
     unrepairable = [problem.message for problem in problems if not problem.repairable]
     if unrepairable:
         raise UnrepairableModelError(model_id, unrepairable)
     if not problems:
         return []
     assert state is not None  # a missing state row is unrepairable
-    tokens, _ = _read_tokens(session, model_id)
-    assert tokens is not None  # unreadable tokens are unrepairable
+    assert tokens is not None  # unreadable tokens are unrepairable (dropping covered batches leaves them as read)
     changes = _drop_kept_batches(session, model_id) if kept_batch_problems else []
     largest_batch = session.scalar(select(func.max(TokenBatch.version)).where(TokenBatch.model_id == model_id))
     new_version = max(state.version, largest_batch or 0) + 1

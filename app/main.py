@@ -31,6 +31,7 @@ from app.errors import InvalidInput, ModelUnavailable, StorageUnavailable, add_e
 from app.feed import SceneFeed
 from app.metrics import ModelMetrics
 from app.middleware import RequestBodyLimits, UnexpectedErrors
+from app.purge import ModelPurger
 from app.registry import ModelRegistry
 from app.routers import contexts, health, keys, models, plans, scenes, stream, training
 from app.services.limits import VocabularyLimits
@@ -71,12 +72,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         model_metrics.state.bind(state, admission)
         state.hub.bind(asyncio.get_running_loop())
         state.feed.start()
+        await anyio.to_thread.run_sync(state.purger.start, state.read_sessions)
         revocations = asyncio.create_task(close_revoked_streams(state.hub, state.read_sessions))
         try:
             yield {"contextweb": state, "admission": admission}
         finally:
             revocations.cancel()
             await anyio.to_thread.run_sync(state.feed.stop)
+            await anyio.to_thread.run_sync(state.purger.stop)
             state.hub.close_everyone("server shutting down")
             state.engine.dispose()
 
@@ -138,6 +141,7 @@ def _start(settings: Settings) -> AppState:
         ),
         hub=hub,
         feed=SceneFeed(hub, engine, read_sessions),
+        purger=ModelPurger(write_sessions),
     )
     state.registry.load_all()
     logger.info("%d model(s) loaded from %s", len(state.registry), engine.url.render_as_string())

@@ -9,6 +9,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from app.feed import SceneFeed
 from app.metrics import ModelEvents
+from app.purge import ModelPurger
 from app.registry import ModelRegistry
 from app.settings import Settings
 from app.storage_health import StorageHealth
@@ -17,7 +18,7 @@ from app.stream import StreamHub
 
 @dataclass(eq=False)
 class AppState:
-    """Engine, session makers, in-memory models, the websocket hub and its feed of one app."""
+    """Engine, session makers, in-memory models, the websocket hub and its feed, and the purger of one app."""
 
     settings: Settings
     engine: Engine
@@ -26,6 +27,8 @@ class AppState:
     registry: ModelRegistry
     hub: StreamHub
     feed: SceneFeed
+    purger: ModelPurger
+    """Deletes the rows of deleted models, a chunk per transaction (app/purge.py)."""
     metrics: ModelEvents | None = None
     """The models' event metrics (app/metrics.py); None in an app built without them."""
     storage: StorageHealth = field(default_factory=StorageHealth)

@@ -136,6 +136,10 @@ class Model(Base):
     fitted_at: Mapped[datetime | None] = mapped_column()
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
     updated_at: Mapped[datetime] = mapped_column(default=utc_now, onupdate=utc_now)
+    deleted_at: Mapped[datetime | None] = mapped_column()
+    """When the model was deleted (alembic 0012), or null while it lives. A deleted model's row stays
+    until its scenes and tokens are purged in short transactions (app/purge.py); every query that
+    lists or loads models skips it (``storage.repositories.models.LIVE``)."""
 
 
 class IncrementalLdaState(Base):

@@ -86,7 +86,7 @@ async def delete_model(model: WriteModelDep, state: StateDep, admission: Admissi
         write_model,
         state,
         model,
-        lambda session: model_service.delete_model(session, state.registry, state.hub, model),
+        lambda session: model_service.delete_model(session, state.registry, state.hub, state.purger, model),
     )
     if state.metrics is not None:
         state.metrics.model_deleted(model.id)  # its series go; its label is free for another model

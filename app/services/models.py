@@ -10,6 +10,7 @@ from pydantic import ValidationError
 from sqlalchemy.orm import Session
 
 from app.errors import InvalidInput
+from app.purge import ModelPurger
 from app.registry import FittedPerception, ModelRegistry, ModelRuntime, ModelWriter, jsonable
 from app.schemas.models import Hyperparameters as HyperparametersSchema
 from app.schemas.models import ModelCreate, ModelRead, VocabularySchema
@@ -123,13 +124,17 @@ def _vocabulary(body: VocabularySchema | None) -> Vocabulary:
         ) from None
 
 
-def delete_model(session: Session, registry: ModelRegistry, hub: StreamHub, model: ModelRuntime) -> None:
-    """Delete the model and everything it learned; its dashboards are disconnected on commit."""
+def delete_model(
+    session: Session, registry: ModelRegistry, hub: StreamHub, purger: ModelPurger, model: ModelRuntime
+) -> None:
+    """Delete the model and everything it learned: on commit it is gone for every process, its
+    dashboards are disconnected, and its rows are handed to the purger (app/purge.py)."""
     model_repository.delete_model(session, model.id)
 
     def forget() -> None:
         registry.forget(model.writer)
         hub.close_model(model.id, CLOSE_NORMAL, "model deleted")
+        purger.purge(model.id)
         logger.info(
             "model %s (%r, %d scenes) deleted; its streams were closed", model.id, model.name, model.summary.scene_count
         )

@@ -70,4 +70,4 @@ def revoked_among(session: Session, key_ids: Collection[str]) -> set[str]:
 
 def existing_model_ids(session: Session, model_ids: Collection[str]) -> set[str]:
     """Which of ``model_ids`` are stored models (a key's scope must name existing models)."""
-    return set(session.scalars(select(Model.id).where(Model.id.in_(list(model_ids)))))
+    return set(session.scalars(select(Model.id).where(Model.id.in_(list(model_ids)), Model.deleted_at.is_(None))))

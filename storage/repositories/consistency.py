@@ -30,8 +30,6 @@ from typing import Any, NamedTuple
 import numpy as np
 from sqlalchemy import (
     ColumnElement,
-    CursorResult,
-    Result,
     Row,
     delete,
     func,
@@ -53,6 +51,8 @@ from storage.models import (
     Word,
     utc_now,
 )
+from storage.repositories import models as model_repository
+from storage.repositories import rowcount
 from storage.repositories.feed import scenes_after
 from storage.repositories.incremental_lda import (
     DamagedBatchError,
@@ -112,7 +112,7 @@ class _Found(NamedTuple):
 
 
 def _find_problems(session: Session, model_id: str) -> _Found:
-    if session.execute(select(Model.id).where(Model.id == model_id)).first() is None:
+    if not model_repository.is_live(session, model_id):
         return _Found([Problem(f"model {model_id!r} is not stored", repairable=False)], [], None)
     hyperparameters, problems = _model_json(session, model_id)
     state = _state_row(session, model_id)
@@ -246,7 +246,7 @@ def _drop_kept_batches(session: Session, model_id: str) -> list[str]:
         select(IncrementalLdaCheckpoint.version).where(IncrementalLdaCheckpoint.model_id == model_id)
     )
     assert checkpoint_version is not None  # kept batches exist only beside a compacting checkpoint
-    deleted = _rowcount(
+    deleted = rowcount(
         session.execute(
             delete(TokenBatch).where(TokenBatch.model_id == model_id, TokenBatch.version <= checkpoint_version)
         )
@@ -274,7 +274,7 @@ def repair_model(session: Session, model_id: str) -> list[str]:
     :class:`UnrepairableModelError`, before writing anything, when the truth itself
     is damaged.
     """
-    if session.execute(select(Model.id).where(Model.id == model_id)).first() is None:
+    if not model_repository.is_live(session, model_id):
         raise LookupError(f"model {model_id!r} is not stored")
     state = _state_row(session, model_id, lock=True)  # the model's writers lock it too (PostgreSQL)
     problems, kept_batch_problems, tokens = _find_problems(session, model_id)
@@ -309,12 +309,6 @@ def repair_model(session: Session, model_id: str) -> list[str]:
         changes.append(f"incremental_lda_checkpoint: rebuilt from the tokens at version {new_version}")
     changes.append(f"incremental_lda_state.version: {state.version} -> {new_version}")
     return changes
-
-
-def _rowcount(result: Result[*tuple[Any, ...]]) -> int:
-    """The rows an UPDATE, DELETE or INSERT matched: ``Session.execute`` types every result as a Result."""
-    assert isinstance(result, CursorResult)
-    return result.rowcount
 
 
 # The state row.
@@ -706,7 +700,7 @@ def _rewrite_counts(
     changes = []
     differences = _count_differences(session, model_id, tokens)
     outside = _count_row_outside(context_count, word_count)
-    deleted = _rowcount(session.execute(delete(ContextWordCount).where(ContextWordCount.model_id == model_id, outside)))
+    deleted = rowcount(session.execute(delete(ContextWordCount).where(ContextWordCount.model_id == model_id, outside)))
     if deleted:
         changes.append(
             f"context_word_count: deleted {_count(deleted, 'row')} naming a context or word that does not exist "

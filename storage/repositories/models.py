@@ -9,7 +9,14 @@ from typing import Any, NamedTuple
 from sqlalchemy import delete, func, select, update
 from sqlalchemy.orm import Session
 
-from storage.models import Model, TrainingBatch, TrainingObject
+from storage.models import IncrementalLdaState, Model, Scene, TokenBatch, TrainingBatch, TrainingObject, utc_now
+from storage.repositories import rowcount
+
+#: The models that live: not deleted (a deleted model's row stays until it is purged, alembic 0012).
+LIVE = Model.deleted_at.is_(None)
+#: The tables a purge empties a chunk at a time (the rest of a model is small and goes with its row),
+#: each with the column of its key after ``model_id``, which orders the chunks.
+_PURGED_IN_CHUNKS = ((Scene, Scene.id), (TokenBatch, TokenBatch.version))
 
 
 def add_model(
@@ -40,7 +47,12 @@ def add_model(
 
 
 def get_model(session: Session, model_id: str) -> Model | None:
-    return session.get(Model, model_id)
+    """The live model ``model_id``, or None (no such model, or a deleted one)."""
+    return session.scalars(select(Model).where(Model.id == model_id, LIVE)).first()
+
+
+def is_live(session: Session, model_id: str) -> bool:
+    return session.execute(select(Model.id).where(Model.id == model_id, LIVE)).first() is not None
 
 
 def find_by_idempotency_key(session: Session, idempotency_key: str) -> tuple[str, bytes | None] | None:
@@ -52,7 +64,7 @@ def find_by_idempotency_key(session: Session, idempotency_key: str) -> tuple[str
 def stored_models(session: Session) -> list[tuple[str, str]]:
     """(id, name) of every stored model, in creation order: no JSON column is decoded, so one model
     whose stored JSON is damaged cannot stop the listing (a start, ``contextweb models check``)."""
-    rows = session.execute(select(Model.id, Model.name).order_by(Model.created_at, Model.id)).all()
+    rows = session.execute(select(Model.id, Model.name).where(LIVE).order_by(Model.created_at, Model.id)).all()
     return [(model_id, name) for model_id, name in rows]
 
 
@@ -70,15 +82,42 @@ class ModelHeader(NamedTuple):
 def get_model_header(session: Session, model_id: str) -> ModelHeader | None:
     row = session.execute(
         select(Model.id, Model.name, Model.seed, Model.sigma, Model.created_at, Model.fitted_at).where(
-            Model.id == model_id
+            Model.id == model_id, LIVE
         )
     ).first()
     return None if row is None else ModelHeader(*row)
 
 
 def delete_model(session: Session, model_id: str) -> None:
-    """Delete a model; its scenes, tokens, counts and training objects go by ON DELETE CASCADE."""
+    """Mark a model deleted: a few rows, whatever its size. Its version row goes, so every process
+    finds it gone on its next request (app/registry.py), and its Idempotency-Key is freed for a new
+    model; :func:`purge_chunk` deletes the rest later, a chunk per transaction (app/purge.py)."""
+    session.execute(
+        update(Model).where(Model.id == model_id).values(deleted_at=utc_now(), idempotency_key=None, request_hash=None)
+    )
+    session.execute(delete(IncrementalLdaState).where(IncrementalLdaState.model_id == model_id))
+
+
+def deleted_models(session: Session) -> list[str]:
+    """Ids of the deleted models whose rows are still being purged, oldest deletion first."""
+    return list(session.scalars(select(Model.id).where(Model.deleted_at.is_not(None)).order_by(Model.deleted_at)))
+
+
+def purge_chunk(session: Session, model_id: str, max_rows: int) -> int:
+    """Delete at most ``max_rows`` of a deleted model's scenes or token batches, in key order; once
+    none is left, its row, and by ON DELETE CASCADE the rest of it (words, counts, training objects,
+    labels, checkpoint: rows bounded by its vocabulary and training set, not its history). Returns
+    how many rows of the chunked tables went (0 once the row itself is gone). A live model is never
+    touched."""
+    if session.execute(select(Model.id).where(Model.id == model_id, Model.deleted_at.is_not(None))).first() is None:
+        return 0
+    for table, key in _PURGED_IN_CHUNKS:
+        first = select(key).where(table.model_id == model_id).order_by(key).limit(max_rows).subquery()
+        last = session.execute(select(func.max(first.c[key.key]))).scalar()
+        if last is not None:
+            return rowcount(session.execute(delete(table).where(table.model_id == model_id, key <= last)))
     session.execute(delete(Model).where(Model.id == model_id))
+    return 0
 
 
 def save_fit(

@@ -1,0 +1,105 @@
+"""Purging deleted models a chunk at a time, on a thread of its own (alembic 0012).
+
+``DELETE /v1/models/{id}`` only marks the model deleted (``storage.repositories.models.delete_model``):
+every process sees it gone at once, and the delete costs a few rows whatever the model's size. Its
+rows are then deleted here, ``PURGE_CHUNK_ROWS`` scenes or token batches per transaction. Why not
+in the delete's transaction: on SQLite a transaction that writes holds the database's one write lock,
+every model's, and one that deleted a million-scene model held it 5.6 s, past the 5 s busy timeout of
+every other write (docs/scaling.md). A chunk holds it for milliseconds, and the purger rests after
+each chunk as long as the chunk took, so that it never has more than half of the lock's time.
+
+Nothing is lost if the process stops mid-purge: each chunk is a transaction, the model stays marked,
+and the next start (of any process on the database) purges what is left. Two processes purging one
+model at once each delete chunks of what is still there. A chunk that fails (the database is down,
+busy, or full) is retried after ``RETRY_SECONDS``.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+
+from sqlalchemy.orm import Session, sessionmaker
+
+from storage.database import write_turn
+from storage.repositories import models as model_repository
+from storage.unit_of_work import unit_of_work
+
+#: Scenes or token batches deleted per transaction: about 30 ms of SQLite's write lock (docs/scaling.md).
+PURGE_CHUNK_ROWS = 5_000
+#: The wait before a chunk that failed is tried again.
+RETRY_SECONDS = 1.0
+
+logger = logging.getLogger("contextweb")
+
+
+class ModelPurger:
+    """One thread that purges the deleted models it is given, oldest first, a chunk per transaction."""
+
+    def __init__(self, write_sessions: sessionmaker[Session]) -> None:
+        self._write_sessions = write_sessions
+        self._pending: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self._stopping = threading.Event()
+        self._outstanding = 0
+        self._done = threading.Condition()
+        self._thread: threading.Thread | None = None
+
+    def start(self, read_sessions: sessionmaker[Session]) -> None:
+        """Start the thread, with the models a stopped process left marked (a start resumes their purge)."""
+        with read_sessions() as session:
+            for model_id in model_repository.deleted_models(session):
+                self.purge(model_id)
+        self._thread = threading.Thread(target=self._run, name="contextweb-model-purge", daemon=True)
+        self._thread.start()
+
+    def purge(self, model_id: str) -> None:
+        """Purge ``model_id``, which a committed delete marked, after the models given before it."""
+        with self._done:
+            self._outstanding += 1
+        self._pending.put(model_id)
+
+    def stop(self, timeout_seconds: float = 5.0) -> None:
+        """Stop after the chunk in progress; what is left is purged by the next start."""
+        self._stopping.set()
+        self._pending.put("")
+        if self._thread is not None:
+            self._thread.join(timeout_seconds)
+
+    def wait_idle(self, timeout_seconds: float) -> bool:
+        """Whether every model given so far was purged within ``timeout_seconds`` (tests, the CLI)."""
+        with self._done:
+            return self._done.wait_for(lambda: self._outstanding == 0, timeout_seconds)
+
+    def _run(self) -> None:
+        while not self._stopping.is_set():
+            model_id = self._pending.get()
+            if not model_id or self._stopping.is_set():
+                continue
+            self._purge(model_id)
+            with self._done:
+                self._outstanding -= 1
+                self._done.notify_all()
+
+    def _purge(self, model_id: str) -> None:
+        started, removed = time.monotonic(), 0
+        while not self._stopping.is_set():
+            chunk_started = time.monotonic()
+            try:
+                with write_turn(self._write_sessions), unit_of_work(self._write_sessions) as session:
+                    deleted = model_repository.purge_chunk(session, model_id, PURGE_CHUNK_ROWS)
+            except Exception as error:  # noqa: BLE001 - a blip: the model stays marked and is tried again
+                logger.warning("model %s: purging its rows failed (%s); retrying", model_id, error)
+                self._stopping.wait(RETRY_SECONDS)
+                continue
+            if deleted == 0:
+                logger.info(
+                    "model %s purged: %d scenes and token batches in %.1f s",
+                    model_id,
+                    removed,
+                    time.monotonic() - started,
+                )
+                return
+            removed += deleted
+            self._stopping.wait(time.monotonic() - chunk_started)  # at most half of the write lock's time

@@ -27,8 +27,9 @@ from storage.database import write_turn
 from storage.repositories import models as model_repository
 from storage.unit_of_work import unit_of_work
 
-#: Scenes or token batches deleted per transaction: about 30 ms of SQLite's write lock (docs/scaling.md).
-PURGE_CHUNK_ROWS = 5_000
+#: Scenes or token batches deleted per transaction: a median 22 ms of SQLite's write lock (5,000: 57 ms;
+#: docs/scaling.md, "Deleting a model").
+PURGE_CHUNK_ROWS = 2_000
 #: The wait before a chunk that failed is tried again.
 RETRY_SECONDS = 1.0
 

@@ -9,7 +9,8 @@ every other write (docs/scaling.md). A chunk holds it for milliseconds, and the 
 each chunk as long as the chunk took, so that it never has more than half of the lock's time.
 
 Nothing is lost if the process stops mid-purge: each chunk is a transaction, the model stays marked,
-and the next start (of any process on the database) purges what is left. Two processes purging one
+and the next start of any process on the database purges what is left, as does any running process's
+purger within ``RESCAN_SECONDS``. Two processes purging one
 model at once each delete chunks of what is still there. A chunk that fails (the database is down,
 busy, or full) is retried after ``RETRY_SECONDS``.
 """
@@ -32,33 +33,37 @@ from storage.unit_of_work import unit_of_work
 PURGE_CHUNK_ROWS = 2_000
 #: The wait before a chunk that failed is tried again.
 RETRY_SECONDS = 1.0
+#: How often an idle purger looks for models marked deleted that nobody is purging.
+RESCAN_SECONDS = 60.0
 
 logger = logging.getLogger("contextweb")
 
 
 class ModelPurger:
-    """One thread that purges the deleted models it is given, oldest first, a chunk per transaction."""
+    """One thread that purges the deleted models it is given or finds, oldest first, a chunk per transaction."""
 
     def __init__(self, write_sessions: sessionmaker[Session]) -> None:
         self._write_sessions = write_sessions
+        self._read_sessions: sessionmaker[Session] | None = None
         self._pending: queue.SimpleQueue[str] = queue.SimpleQueue()
         self._stopping = threading.Event()
-        self._outstanding = 0
-        self._done = threading.Condition()
+        self._queued: set[str] = set()
+        self._changed = threading.Condition()
         self._thread: threading.Thread | None = None
 
     def start(self, read_sessions: sessionmaker[Session]) -> None:
         """Start the thread, with the models a stopped process left marked (a start resumes their purge)."""
-        with read_sessions() as session:
-            for model_id in model_repository.deleted_models(session):
-                self.purge(model_id)
+        self._read_sessions = read_sessions
+        self._find_marked()
         self._thread = threading.Thread(target=self._run, name="contextweb-model-purge", daemon=True)
         self._thread.start()
 
     def purge(self, model_id: str) -> None:
         """Purge ``model_id``, which a committed delete marked, after the models given before it."""
-        with self._done:
-            self._outstanding += 1
+        with self._changed:
+            if model_id in self._queued:
+                return
+            self._queued.add(model_id)
         self._pending.put(model_id)
 
     def stop(self, timeout_seconds: float = 5.0) -> None:
@@ -69,19 +74,38 @@ class ModelPurger:
             self._thread.join(timeout_seconds)
 
     def wait_idle(self, timeout_seconds: float) -> bool:
-        """Whether every model given so far was purged within ``timeout_seconds`` (tests, the CLI)."""
-        with self._done:
-            return self._done.wait_for(lambda: self._outstanding == 0, timeout_seconds)
+        """Whether every model given or found so far was purged within ``timeout_seconds`` (tests)."""
+        with self._changed:
+            return self._changed.wait_for(lambda: not self._queued, timeout_seconds)
+
+    def _find_marked(self) -> None:
+        """Queue every model marked deleted: those a stopped process left, or whose deleting process
+        stopped before it purged them (found within ``RESCAN_SECONDS`` by any process's purger)."""
+        assert self._read_sessions is not None
+        try:
+            with self._read_sessions() as session:
+                marked = model_repository.deleted_models(session)
+        except Exception as error:  # noqa: BLE001 - the database is down: the next scan finds them
+            logger.warning("looking for deleted models to purge failed (%s); trying again later", error)
+            return
+        for model_id in marked:
+            self.purge(model_id)
 
     def _run(self) -> None:
+        next_scan = time.monotonic() + RESCAN_SECONDS
         while not self._stopping.is_set():
-            model_id = self._pending.get()
+            try:
+                model_id = self._pending.get(timeout=max(0.0, next_scan - time.monotonic()))
+            except queue.Empty:
+                self._find_marked()
+                next_scan = time.monotonic() + RESCAN_SECONDS
+                continue
             if not model_id or self._stopping.is_set():
                 continue
             self._purge(model_id)
-            with self._done:
-                self._outstanding -= 1
-                self._done.notify_all()
+            with self._changed:
+                self._queued.discard(model_id)
+                self._changed.notify_all()
 
     def _purge(self, model_id: str) -> None:
         started, removed = time.monotonic(), 0

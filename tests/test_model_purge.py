@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -119,3 +120,21 @@ def test_a_purge_never_touches_a_live_model(engine: Engine, client: TestClient) 
     with unit_of_work(client.app_state["contextweb"].write_sessions) as session:
         assert model_repository.purge_chunk(session, live, CHUNK_ROWS) == 0
     assert _rows_of(engine, live)["scene"] == SCENES
+
+
+def test_a_running_purger_finds_a_model_whose_deleting_process_stopped(
+    database_url: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Marked by a process that stopped before purging it (here: marked from outside the app), the
+    model is found by the running app's purger at its next scan."""
+    monkeypatch.setattr(purge, "RESCAN_SECONDS", 0.2)
+    with TestClient(create_app(make_settings(database_url))) as client:
+        state: AppState = client.app_state["contextweb"]
+        doomed = _model_with_scenes(client, "doomed")
+        with unit_of_work(state.write_sessions) as session:
+            model_repository.delete_model(session, doomed)
+        deadline = time.monotonic() + 60
+        while _rows_of(state.engine, doomed)["model"] and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert set(_rows_of(state.engine, doomed).values()) == {0}
+        assert client.get(f"/v1/models/{doomed}").status_code == 404

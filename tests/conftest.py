@@ -25,6 +25,7 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from sqlalchemy import Engine, create_engine, text
 
+from alembic import command
 from app.main import create_app
 from app.registry import ModelRuntime
 from app.schemas.observations import RawObject as ServiceRawObject
@@ -36,7 +37,7 @@ from core.features.layout import EFFECT_LAYOUT, EFFECT_SIZE, ENTITY_SIZE
 from core.payloads import ObjectRecording
 from sim.world import World
 from storage.database import create_database_engine, create_session_makers
-from storage.migrations import upgrade_to_head
+from storage.migrations import alembic_config, upgrade_to_head
 from storage.models import Base
 from storage.repositories.consistency import check_model
 
@@ -279,3 +280,11 @@ def stored_problems(engine: Engine, model_id: str) -> list[str]:
     read, _ = create_session_makers(engine)
     with read() as session:
         return check_model(session, model_id)
+
+
+def migrate(engine: Engine, action: str, revision: str) -> None:
+    """``alembic upgrade`` or ``downgrade`` (``action``) of the database to ``revision``, in one transaction."""
+    config = alembic_config()
+    with engine.begin() as connection:
+        config.attributes["connection"] = connection
+        getattr(command, action)(config, revision)

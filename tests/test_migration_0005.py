@@ -11,11 +11,9 @@ from pathlib import Path
 import pytest
 from sqlalchemy import Engine, create_engine, text
 
-from alembic import command
 from storage.database import create_database_engine, create_session_makers
-from storage.migrations import alembic_config
 from storage.repositories import scenes as scene_repository
-from tests.conftest import BACKENDS, POSTGRES_SERVER_URL
+from tests.conftest import BACKENDS, POSTGRES_SERVER_URL, migrate
 
 #: Old-format answers: JSON with floats at full precision, non-ASCII text, and one large enough
 #: to be stored in several database pages (more than 1,000 objects' worth of keys).
@@ -61,17 +59,10 @@ def empty_database(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[s
         admin.dispose()
 
 
-def _migrate(engine: Engine, revision: str, *, down: bool = False) -> None:
-    config = alembic_config()
-    with engine.begin() as connection:
-        config.attributes["connection"] = connection
-        (command.downgrade if down else command.upgrade)(config, revision)
-
-
 def test_upgrading_converts_old_answers_byte_for_byte_and_downgrading_restores_them(empty_database: str) -> None:
     engine = create_database_engine(empty_database)
     try:
-        _migrate(engine, "0004")
+        migrate(engine, "upgrade", "0004")
         with engine.begin() as connection:
             connection.execute(
                 text(
@@ -96,11 +87,11 @@ def test_upgrading_converts_old_answers_byte_for_byte_and_downgrading_restores_t
                     ),
                     dict(zip(("id", "scene", "word", "context", "version"), token, strict=True)),
                 )
-        _migrate(engine, "0006")  # 0007 replaces the token table (tests/test_migration_0007.py)
+        migrate(engine, "upgrade", "0006")  # 0007 replaces the token table (tests/test_migration_0007.py)
         assert _tokens(engine) == TOKENS
         if engine.dialect.name == "sqlite":
             assert "WITHOUT ROWID" in _token_table_sql(engine)
-        _migrate(engine, "head")  # the repository reads the latest scene table (alembic 0008)
+        migrate(engine, "upgrade", "head")  # the repository reads the latest scene table (alembic 0008)
         read, _ = create_session_makers(engine)
         with read() as session:
             scenes = [scene_repository.get_scene(session, "m", i) for i in range(len(ANSWERS))]
@@ -111,7 +102,7 @@ def test_upgrading_converts_old_answers_byte_for_byte_and_downgrading_restores_t
             stored = connection.execute(text("SELECT answer_zlib FROM scene WHERE id = 1")).scalar_one()
         assert len(bytes(stored)) < len(ANSWERS[1]) / 4, "the answers are stored compressed"
 
-        _migrate(engine, "0004", down=True)
+        migrate(engine, "downgrade", "0004")
         with engine.connect() as connection:
             rows = connection.execute(text("SELECT answer FROM scene ORDER BY id")).scalars().all()
         assert rows == ANSWERS

@@ -12,13 +12,13 @@ import sqlalchemy as sa
 from sqlalchemy import Engine
 from sqlalchemy.orm import Session
 
-from alembic import command
 from app.registry import stored_hyperparameters
 from core.context import Hyperparameters, ScenesSettings
 from core.context.hyperparameters import nest_flat_settings
 from core.errors import InvalidInputError
-from storage.migrations import alembic_config, upgrade_to_head
+from storage.migrations import upgrade_to_head
 from storage.models import JSONType, Model
+from tests.conftest import migrate
 
 #: What the service stored before 0006: the full flat dump of every setting (a few changed).
 SCENES_ROW: dict[str, Any] = {
@@ -58,13 +58,6 @@ MIGRATION = importlib.util.module_from_spec(_SPEC)
 _SPEC.loader.exec_module(MIGRATION)
 
 
-def _migrate(engine: Engine, action: str, revision: str) -> None:
-    config = alembic_config()
-    with engine.begin() as connection:
-        config.attributes["connection"] = connection
-        getattr(command, action)(config, revision)
-
-
 def _stored(engine: Engine, with_version: bool) -> dict[str, tuple[dict[str, Any], int | None]]:
     columns = [MODEL.c.id, MODEL.c.hyperparameters]
     if with_version:
@@ -92,7 +85,7 @@ def _insert_flat_rows(engine: Engine) -> None:
 @pytest.fixture
 def flat_database(engine: Engine) -> Engine:
     """A database at the revision before 0006 holding one model per kind of flat row."""
-    _migrate(engine, "downgrade", "0006-1")
+    migrate(engine, "downgrade", "0006-1")
     _insert_flat_rows(engine)
     return engine
 
@@ -122,7 +115,7 @@ def test_a_likelihood_model_continues_under_the_scenes_rule(flat_database: Engin
 
 def test_the_downgrade_writes_the_flat_form_back(flat_database: Engine) -> None:
     upgrade_to_head(flat_database)
-    _migrate(flat_database, "downgrade", "0006-1")
+    migrate(flat_database, "downgrade", "0006-1")
     stored = _stored(flat_database, with_version=False)
     restored = stored["paper"][0]
     assert restored["k_selection"] == "paper" and restored["tau"] == 0.07 and restored["alpha"] == 0.2

@@ -11,7 +11,8 @@ from storage.database import create_database_engine, create_session_makers
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories.incremental_lda import SceneChanges
 from storage.unit_of_work import unit_of_work
-from tests.test_migration_0005 import _migrate, empty_database
+from tests.conftest import migrate
+from tests.test_migration_0005 import empty_database
 
 __all__ = ["empty_database"]  # the fixture, shared with migration 0005's test
 
@@ -28,7 +29,7 @@ def _tokens(engine: Engine) -> list[tuple[int, ...]]:
 
 def _old_database(engine: Engine) -> None:
     """Two models at revision 0006: 'm' with 2 scenes of token rows, 'empty' without any."""
-    _migrate(engine, "0006")
+    migrate(engine, "upgrade", "0006")
     with engine.begin() as connection:
         for model_id in ("m", "empty"):
             connection.execute(
@@ -63,7 +64,7 @@ def test_upgrading_checkpoints_the_token_rows_and_downgrading_rebuilds_them_with
     engine = create_database_engine(empty_database)
     try:
         _old_database(engine)
-        _migrate(engine, "head")
+        migrate(engine, "upgrade", "head")
         assert "token" not in inspect(engine).get_table_names()
         read, write = create_session_makers(engine)
         with read() as session:
@@ -102,7 +103,7 @@ def test_upgrading_checkpoints_the_token_rows_and_downgrading_rebuilds_them_with
                 ),
             )
 
-        _migrate(engine, "0006", down=True)
+        migrate(engine, "downgrade", "0006")
         assert _tokens(engine) == [
             (0, 0, 0, 1, 5),
             (1, 0, 2, 1, 6),
@@ -115,7 +116,7 @@ def test_upgrading_checkpoints_the_token_rows_and_downgrading_rebuilds_them_with
         columns = {column["name"] for column in inspect(engine).get_columns("incremental_lda_checkpoint")}
         assert "compacted_version" not in columns
 
-        _migrate(engine, "head")  # and up again: the rebuilt rows checkpoint at the model's version 6
+        migrate(engine, "upgrade", "head")  # and up again: the rebuilt rows checkpoint at the model's version 6
         with read() as session:
             again = lda_repository.load_assignments(session, "m")
             assert lda_repository.compacted_version(session, "m") == 6

@@ -12,11 +12,10 @@ import sqlalchemy as sa
 from sqlalchemy import Engine
 from sqlalchemy.exc import IntegrityError
 
-from alembic import command
 from storage.compression import compress_answer
 from storage.database import create_session_makers
-from storage.migrations import alembic_config
 from storage.repositories import scenes as scene_repository
+from tests.conftest import migrate
 
 NOW = datetime(2026, 12, 1, tzinfo=UTC)
 #: (scene id, idempotency key) of the old rows: keyed and keyless scenes of one model.
@@ -35,13 +34,6 @@ SCENE = sa.table(
     sa.column("answer_zlib", sa.LargeBinary()),
     sa.column("created_at", sa.DateTime(timezone=True)),
 )
-
-
-def _migrate(engine: Engine, action: str, revision: str) -> None:
-    config = alembic_config()
-    with engine.begin() as connection:
-        config.attributes["connection"] = connection
-        getattr(command, action)(config, revision)
 
 
 def _scene(scene_id: int, key: str | None, request_hash: object) -> dict[str, object]:
@@ -67,7 +59,7 @@ def _insert(engine: Engine, *rows: dict[str, object]) -> None:
 
 
 def test_upgrading_compacts_the_scene_rows_and_downgrading_restores_them(engine: Engine) -> None:
-    _migrate(engine, "downgrade", "0008-1")
+    migrate(engine, "downgrade", "0008-1")
     with engine.begin() as connection:
         connection.execute(
             sa.text(
@@ -78,7 +70,7 @@ def test_upgrading_compacts_the_scene_rows_and_downgrading_restores_them(engine:
         )
     _insert(engine, *(_scene(scene_id, key, DIGESTS[scene_id].hex()) for scene_id, key in KEYS))
 
-    _migrate(engine, "upgrade", "head")
+    migrate(engine, "upgrade", "head")
     assert _hashes(engine) == {0: DIGESTS[0], 1: None, 2: DIGESTS[2], 3: None}
     read, _ = create_session_makers(engine)
     with read() as session:
@@ -89,7 +81,7 @@ def test_upgrading_compacts_the_scene_rows_and_downgrading_restores_them(engine:
     with pytest.raises(IntegrityError):
         _insert(engine, _scene(6, "key-0", DIGESTS[0]))
 
-    _migrate(engine, "downgrade", "0008-1")
+    migrate(engine, "downgrade", "0008-1")
     restored = {0: DIGESTS[0].hex(), 1: "", 2: DIGESTS[2].hex(), 3: "", 4: "", 5: ""}
     assert _hashes(engine) == restored
     with pytest.raises(IntegrityError):
@@ -97,5 +89,5 @@ def test_upgrading_compacts_the_scene_rows_and_downgrading_restores_them(engine:
     inspector = sa.inspect(engine)
     assert {c["name"] for c in inspector.get_unique_constraints("scene")} == {"uq_scene_model_id_idempotency_key"}
     assert not any(column["nullable"] for column in inspector.get_columns("scene") if column["name"] == "request_hash")
-    _migrate(engine, "upgrade", "head")
+    migrate(engine, "upgrade", "head")
     assert _hashes(engine) == {0: DIGESTS[0], 1: None, 2: DIGESTS[2], 3: None, 4: None, 5: None}

@@ -11,17 +11,9 @@ import sqlalchemy as sa
 from sqlalchemy import Engine
 from sqlalchemy.exc import IntegrityError
 
-from alembic import command
-from storage.migrations import alembic_config
+from tests.conftest import migrate
 
 NOW = datetime(2026, 12, 6, tzinfo=UTC)
-
-
-def _migrate(engine: Engine, action: str, revision: str) -> None:
-    config = alembic_config()
-    with engine.begin() as connection:
-        config.attributes["connection"] = connection
-        getattr(command, action)(config, revision)
 
 
 def _insert_model(engine: Engine, model_id: str, key: str | None = None) -> None:
@@ -44,14 +36,14 @@ def _counts(engine: Engine) -> tuple[int, int]:
 
 
 def test_keyed_creation_columns_come_and_go_without_touching_what_references_models(engine: Engine) -> None:
-    _migrate(engine, "downgrade", "0008")
+    migrate(engine, "downgrade", "0008")
     _insert_model(engine, "old")
     with engine.begin() as connection:
         connection.execute(
             sa.text("INSERT INTO word (model_id, id, name, created_at) VALUES ('old', 0, 'cup', :now)"), {"now": NOW}
         )
 
-    _migrate(engine, "upgrade", "head")
+    migrate(engine, "upgrade", "head")
     with engine.connect() as connection:
         assert connection.execute(sa.text("SELECT idempotency_key, request_hash FROM model")).one() == (None, None)
     _insert_model(engine, "keyless")  # keyless models are not indexed and never collide
@@ -60,9 +52,9 @@ def test_keyed_creation_columns_come_and_go_without_touching_what_references_mod
         _insert_model(engine, "second", key="create-1")
     assert _counts(engine) == (3, 1)
 
-    _migrate(engine, "downgrade", "0008")
+    migrate(engine, "downgrade", "0008")
     columns = {column["name"] for column in sa.inspect(engine).get_columns("model")}
     assert not columns & {"idempotency_key", "request_hash"}, columns
     assert _counts(engine) == (3, 1)  # the old model's word survived: the table was not rebuilt
-    _migrate(engine, "upgrade", "head")
+    migrate(engine, "upgrade", "head")
     assert _counts(engine) == (3, 1)

@@ -9,17 +9,9 @@ from datetime import UTC, datetime
 import sqlalchemy as sa
 from sqlalchemy import Engine
 
-from alembic import command
-from storage.migrations import alembic_config
+from tests.conftest import migrate
 
 NOW = datetime(2026, 12, 8, tzinfo=UTC)
-
-
-def _migrate(engine: Engine, action: str, revision: str) -> None:
-    config = alembic_config()
-    with engine.begin() as connection:
-        config.attributes["connection"] = connection
-        getattr(command, action)(config, revision)
 
 
 def _insert_model_with_a_word(engine: Engine, model_id: str) -> None:
@@ -43,10 +35,10 @@ def _words(engine: Engine) -> dict[str, int]:
 
 
 def test_models_are_live_after_the_upgrade_and_marked_ones_go_with_the_downgrade(engine: Engine) -> None:
-    _migrate(engine, "downgrade", "0011")
+    migrate(engine, "downgrade", "0011")
     _insert_model_with_a_word(engine, "old")
 
-    _migrate(engine, "upgrade", "head")
+    migrate(engine, "upgrade", "head")
     with engine.connect() as connection:
         assert connection.execute(sa.text("SELECT id, deleted_at FROM model")).all() == [("old", None)]
     _insert_model_with_a_word(engine, "doomed")
@@ -54,8 +46,8 @@ def test_models_are_live_after_the_upgrade_and_marked_ones_go_with_the_downgrade
         connection.execute(sa.text("UPDATE model SET deleted_at = :now WHERE id = 'doomed'"), {"now": NOW})
     assert _words(engine) == {"old": 1, "doomed": 1}
 
-    _migrate(engine, "downgrade", "0011")
+    migrate(engine, "downgrade", "0011")
     assert "deleted_at" not in {column["name"] for column in sa.inspect(engine).get_columns("model")}
     assert _words(engine) == {"old": 1}  # the marked model and its word are gone; the live one's stays
-    _migrate(engine, "upgrade", "head")
+    migrate(engine, "upgrade", "head")
     assert _words(engine) == {"old": 1}

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Iterator
 
@@ -18,6 +19,7 @@ from storage.models import Base
 from storage.repositories import models as model_repository
 from storage.unit_of_work import unit_of_work
 from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, make_settings
+from tests.faults import database_name, fresh_postgres_database, postgres_outage
 
 CHUNK_ROWS = 4
 SCENES = 14
@@ -138,3 +140,28 @@ def test_a_running_purger_finds_a_model_whose_deleting_process_stopped(
             time.sleep(0.1)
         assert set(_rows_of(state.engine, doomed).values()) == {0}
         assert client.get(f"/v1/models/{doomed}").status_code == 404
+
+
+@pytest.mark.postgres
+def test_a_purge_outlives_a_postgresql_outage(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The database refuses connections (and ends every open one) while a purge is due: its chunks
+    fail and are retried, and once the database is back the purge ends with every row gone and the
+    other model whole."""
+    monkeypatch.setattr(purge, "RETRY_SECONDS", 0.2)
+    with fresh_postgres_database() as url, TestClient(create_app(make_settings(url))) as client:
+        state: AppState = client.app_state["contextweb"]
+        doomed, kept = _model_with_scenes(client, "doomed"), _model_with_scenes(client, "kept")
+        kept_rows = _rows_of(state.engine, kept)
+        with unit_of_work(state.write_sessions) as session:  # marked by a process that stopped there
+            model_repository.delete_model(session, doomed)
+        with caplog.at_level(logging.WARNING, logger="contextweb"), postgres_outage(database_name(url)):
+            state.purger.purge(doomed)
+            time.sleep(1.5)
+            assert not state.purger.wait_idle(0)
+        assert state.purger.wait_idle(60)
+        assert any("purging its rows failed" in record.getMessage() for record in caplog.records)
+        assert set(_rows_of(state.engine, doomed).values()) == {0}
+        assert _rows_of(state.engine, kept) == kept_rows
+        assert client.get(f"/v1/models/{kept}").json()["scene_count"] == SCENES

@@ -33,6 +33,7 @@ from app.services.perception import raw_recording
 from app.services.warmup import warm_up_kernels
 from app.settings import Settings
 from app.state import AppState
+from core.context.incremental import ContextModelState
 from core.features.layout import EFFECT_LAYOUT, EFFECT_SIZE, ENTITY_SIZE
 from core.payloads import ObjectRecording
 from sim.world import World
@@ -288,3 +289,20 @@ def migrate(engine: Engine, action: str, revision: str) -> None:
     with engine.begin() as connection:
         config.attributes["connection"] = connection
         getattr(command, action)(config, revision)
+
+
+def memory_state(client: TestClient, model_id: str) -> ContextModelState:
+    """The model's Incremental-LDA state as the app holds it, after checking its invariants."""
+    state: AppState = client.app_state["contextweb"]
+    model = state.registry.get(model_id)
+    assert model is not None and model.unavailable is None, model and model.unavailable
+    model.incremental_lda.check_invariants()
+    return model.incremental_lda.to_state()
+
+
+def assert_same_state(state: ContextModelState, expected: ContextModelState) -> None:
+    """Bit for bit: K, the vocabulary, every token's word and context, the scenes, n_kw, the random state."""
+    assert state.n_contexts == expected.n_contexts and state.vocabulary == expected.vocabulary
+    for name in ("words", "assignments", "doc_offsets", "n_kw"):
+        assert np.array_equal(getattr(state, name), getattr(expected, name)), name
+    assert state.rng_state == expected.rng_state

@@ -13,14 +13,19 @@ from fastapi.testclient import TestClient
 from sqlalchemy import Engine, text
 
 from app.main import create_app
-from app.state import AppState
-from core.context.incremental import ContextModelState
 from storage.compression import pack_arrays, pack_small_arrays, unpack_arrays, unpack_small_arrays
 from storage.database import create_database_engine, create_session_makers
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories.consistency import check_model, repair_model
 from storage.unit_of_work import unit_of_work
-from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, make_settings, stored_problems
+from tests.conftest import (
+    FAST_HYPERPARAMETERS,
+    assert_same_state,
+    concept_scenes,
+    make_settings,
+    memory_state,
+    stored_problems,
+)
 
 #: Small enough that 24 scenes cross three checkpoints (after scenes 7, 14 and 21) and leave a tail of 3
 #: that ends with a scheduled growth check (FAST_HYPERPARAMETERS: after scenes 1, 2, 3, 6, 12, 24, ...),
@@ -44,21 +49,6 @@ def _create(client: TestClient) -> str:
     return client.post("/v1/models", json=body).json()["id"]
 
 
-def _memory(client: TestClient, model_id: str) -> ContextModelState:
-    state: AppState = client.app_state["contextweb"]
-    model = state.registry.get(model_id)
-    assert model is not None and model.unavailable is None, model and model.unavailable
-    model.incremental_lda.check_invariants()
-    return model.incremental_lda.to_state()
-
-
-def _same_state(state: ContextModelState, expected: ContextModelState) -> None:
-    assert state.n_contexts == expected.n_contexts and state.vocabulary == expected.vocabulary
-    for name in ("words", "assignments", "doc_offsets", "n_kw"):
-        assert np.array_equal(getattr(state, name), getattr(expected, name)), name
-    assert state.rng_state == expected.rng_state
-
-
 def _start(engine: Engine, model_id: str) -> lda_repository.StoredStart:
     read, _ = create_session_makers(engine)
     with read() as session:
@@ -71,7 +61,7 @@ def test_a_checkpointed_model_restarts_from_checkpoint_and_tail_bit_for_bit(data
     with TestClient(create_app(settings)) as client:
         uninterrupted = _create(client)
         expected = _post(client, uninterrupted, scenes)
-        expected_state = _memory(client, uninterrupted)
+        expected_state = memory_state(client, uninterrupted)
         restarted = _create(client)
         before = _post(client, restarted, scenes[:RESTART_AFTER])
 
@@ -88,10 +78,10 @@ def test_a_checkpointed_model_restarts_from_checkpoint_and_tail_bit_for_bit(data
 
     with TestClient(create_app(settings)) as client:
         after = _post(client, restarted, scenes[RESTART_AFTER:])
-        state = _memory(client, restarted)
+        state = memory_state(client, restarted)
     assert before + after == expected
     assert max(answer["context_count"] for answer in expected) > 1, "the scenes should make K grow"
-    _same_state(state, expected_state)
+    assert_same_state(state, expected_state)
 
 
 def _corrupt_checkpoint(engine: Engine, model_id: str) -> tuple[int, int]:
@@ -114,7 +104,7 @@ def test_models_check_names_a_corrupted_checkpoint_and_repair_rebuilds_it(databa
     with TestClient(create_app(settings)) as client:
         model_id = _create(client)
         _post(client, model_id, concept_scenes(13, seed=4))
-        sound = _memory(client, model_id)
+        sound = memory_state(client, model_id)
     engine = create_database_engine(database_url)
     read, write = create_session_makers(engine)
     try:
@@ -150,7 +140,7 @@ def test_models_check_names_a_corrupted_checkpoint_and_repair_rebuilds_it(databa
         engine.dispose()
 
     with TestClient(create_app(settings)) as client:  # repaired: it loads, equal to the sound model
-        _same_state(_memory(client, model_id), sound)
+        assert_same_state(memory_state(client, model_id), sound)
 
 
 def test_packed_arrays_round_trip_in_the_narrowest_type_and_damage_is_refused() -> None:
@@ -198,13 +188,13 @@ def test_a_server_behind_the_compacted_batches_reloads_and_one_within_an_interva
         with caplog.at_level("INFO", logger="contextweb"):
             assert follower.get(f"/v1/models/{model_id}/contexts").status_code == 200
         assert any("folded into its checkpoint" in record.getMessage() for record in caplog.records)
-        _same_state(_memory(follower, model_id), _memory(writer, model_id))
+        assert_same_state(memory_state(follower, model_id), memory_state(writer, model_id))
         caplog.clear()
         _post(writer, model_id, scenes[2 * INTERVAL + 1 :])  # crosses the checkpoint after scene 21
         with caplog.at_level("INFO", logger="contextweb"):
             assert follower.get(f"/v1/models/{model_id}/contexts").status_code == 200
         assert not any("folded into its checkpoint" in record.getMessage() for record in caplog.records)
-        _same_state(_memory(follower, model_id), _memory(writer, model_id))
+        assert_same_state(memory_state(follower, model_id), memory_state(writer, model_id))
 
 
 def test_a_server_far_behind_a_newer_checkpoint_reloads_when_that_is_cheaper_than_replaying(
@@ -224,13 +214,13 @@ def test_a_server_far_behind_a_newer_checkpoint_reloads_when_that_is_cheaper_tha
         with caplog.at_level("INFO", logger="contextweb"):
             assert follower.get(f"/v1/models/{model_id}/contexts").status_code == 200
         assert any("cheaper than replaying" in record.getMessage() for record in caplog.records)
-        _same_state(_memory(follower, model_id), _memory(writer, model_id))
+        assert_same_state(memory_state(follower, model_id), memory_state(writer, model_id))
         caplog.clear()
         _post(writer, model_id, scenes[interval + 5 :])
         with caplog.at_level("INFO", logger="contextweb"):
             assert follower.get(f"/v1/models/{model_id}/contexts").status_code == 200
         assert not any("reloading it from its checkpoint" in record.getMessage() for record in caplog.records)
-        _same_state(_memory(follower, model_id), _memory(writer, model_id))
+        assert_same_state(memory_state(follower, model_id), memory_state(writer, model_id))
 
 
 def test_small_packed_arrays_round_trip_narrow_and_short_and_damage_is_refused() -> None:

@@ -16,7 +16,6 @@ import threading
 from collections.abc import Iterator
 from contextlib import ExitStack
 
-import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
@@ -24,10 +23,9 @@ from app.main import create_app
 from app.models_cli import SOUND, run_check
 from app.registry import ModelRegistry, load_runtime
 from app.state import AppState
-from core.context.incremental import ContextModelState
 from storage.repositories import incremental_lda as lda_repository
 from storage.repositories import models as model_repository
-from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, make_settings
+from tests.conftest import FAST_HYPERPARAMETERS, assert_same_state, concept_scenes, make_settings, memory_state
 
 
 @pytest.fixture
@@ -51,21 +49,6 @@ def _learn(client: TestClient, model_id: str, body: dict) -> dict:
     return {k: v for k, v in response.json().items() if k not in ("model_id", "created_at")}
 
 
-def _memory(client: TestClient, model_id: str) -> ContextModelState:
-    state: AppState = client.app_state["contextweb"]
-    model = state.registry.get(model_id)
-    assert model is not None
-    model.incremental_lda.check_invariants()
-    return model.incremental_lda.to_state()
-
-
-def _assert_same_state(left: ContextModelState, right: ContextModelState) -> None:
-    assert left.n_contexts == right.n_contexts and left.vocabulary == right.vocabulary
-    for name in ("words", "assignments", "doc_offsets", "n_kw"):
-        assert np.array_equal(getattr(left, name), getattr(right, name)), name
-    assert left.rng_state == right.rng_state
-
-
 def test_interleaved_writes_continue_exactly_like_one_process(two_processes: tuple[TestClient, TestClient]) -> None:
     first, second = two_processes
     scenes = concept_scenes(30, seed=5)
@@ -79,8 +62,8 @@ def test_interleaved_writes_continue_exactly_like_one_process(two_processes: tup
     assert max(answer["context_count"] for answer in expected) > 1, "the scenes should make K grow"
     for client in (first, second):
         assert client.get(f"/v1/models/{shared}").json()["scene_count"] == len(scenes)
-    _assert_same_state(_memory(first, shared), _memory(second, shared))
-    _assert_same_state(_memory(second, shared), _memory(first, alone))
+    assert_same_state(memory_state(first, shared), memory_state(second, shared))
+    assert_same_state(memory_state(second, shared), memory_state(first, alone))
 
 
 def test_reads_see_every_write_of_the_other_process(two_processes: tuple[TestClient, TestClient]) -> None:
@@ -120,7 +103,7 @@ def test_catching_up_equals_loading_from_scratch(two_processes: tuple[TestClient
     with state.read_sessions() as session:
         loaded = load_runtime(session, model_repository.get_model(session, model_id))
         assert lda_repository.stored_version(session, model_id) == 21
-    _assert_same_state(_memory(second, model_id), loaded.incremental_lda.to_state())
+    assert_same_state(memory_state(second, model_id), loaded.incremental_lda.to_state())
     assert state.registry.get(model_id).version == loaded.version == 21
 
 

@@ -7,13 +7,10 @@ the next posterior, K, the assignments and the counts are identical.
 
 from __future__ import annotations
 
-import numpy as np
 from fastapi.testclient import TestClient
 
 from app.main import create_app
-from app.state import AppState
-from core.context.incremental import ContextModelState
-from tests.conftest import FAST_HYPERPARAMETERS, concept_scenes, make_settings
+from tests.conftest import FAST_HYPERPARAMETERS, assert_same_state, concept_scenes, make_settings, memory_state
 
 
 def _post(client: TestClient, model_id: str, scenes: list[dict]) -> list[dict]:
@@ -23,13 +20,6 @@ def _post(client: TestClient, model_id: str, scenes: list[dict]) -> list[dict]:
         assert response.status_code == 201, response.text
         answers.append({k: v for k, v in response.json().items() if k not in ("model_id", "created_at")})
     return answers
-
-
-def _memory(client: TestClient, model_id: str) -> ContextModelState:
-    state: AppState = client.app_state["contextweb"]
-    model = state.registry.get(model_id)
-    model.incremental_lda.check_invariants()
-    return model.incremental_lda.to_state()
 
 
 def _create(client: TestClient) -> str:
@@ -43,18 +33,14 @@ def test_restart_continues_exactly_like_an_uninterrupted_run(database_url: str) 
     with TestClient(create_app(settings)) as client:
         uninterrupted = _create(client)
         expected = _post(client, uninterrupted, scenes)
-        expected_state = _memory(client, uninterrupted)
+        expected_state = memory_state(client, uninterrupted)
         restarted = _create(client)
         before = _post(client, restarted, scenes[:13])
     with TestClient(create_app(settings)) as client:
         after = _post(client, restarted, scenes[13:])
-        state = _memory(client, restarted)
-        assert _memory(client, uninterrupted).rng_state == expected_state.rng_state
+        state = memory_state(client, restarted)
+        assert memory_state(client, uninterrupted).rng_state == expected_state.rng_state
 
     assert before + after == expected
     assert max(answer["context_count"] for answer in expected) > 1, "the scenes should make K grow"
-    assert state.n_contexts == expected_state.n_contexts
-    assert state.vocabulary == expected_state.vocabulary
-    for name in ("words", "assignments", "doc_offsets", "n_kw"):
-        assert np.array_equal(getattr(state, name), getattr(expected_state, name)), name
-    assert state.rng_state == expected_state.rng_state
+    assert_same_state(state, expected_state)

@@ -18,7 +18,6 @@ busy, or full) is retried after ``RETRY_SECONDS``.
 from __future__ import annotations
 
 import logging
-import queue
 import threading
 import time
 
@@ -45,9 +44,9 @@ class ModelPurger:
     def __init__(self, write_sessions: sessionmaker[Session]) -> None:
         self._write_sessions = write_sessions
         self._read_sessions: sessionmaker[Session] | None = None
-        self._pending: queue.SimpleQueue[str] = queue.SimpleQueue()
         self._stopping = threading.Event()
-        self._queued: set[str] = set()
+        self._queued: list[str] = []
+        """The models to purge, in order; the first stays listed while it is purged."""
         self._changed = threading.Condition()
         self._thread: threading.Thread | None = None
 
@@ -61,15 +60,15 @@ class ModelPurger:
     def purge(self, model_id: str) -> None:
         """Purge ``model_id``, which a committed delete marked, after the models given before it."""
         with self._changed:
-            if model_id in self._queued:
-                return
-            self._queued.add(model_id)
-        self._pending.put(model_id)
+            if model_id not in self._queued:
+                self._queued.append(model_id)
+                self._changed.notify_all()
 
     def stop(self, timeout_seconds: float = 5.0) -> None:
         """Stop after the chunk in progress; what is left is purged by the next start."""
         self._stopping.set()
-        self._pending.put("")
+        with self._changed:
+            self._changed.notify_all()
         if self._thread is not None:
             self._thread.join(timeout_seconds)
 
@@ -93,18 +92,21 @@ class ModelPurger:
 
     def _run(self) -> None:
         next_scan = time.monotonic() + RESCAN_SECONDS
-        while not self._stopping.is_set():
-            try:
-                model_id = self._pending.get(timeout=max(0.0, next_scan - time.monotonic()))
-            except queue.Empty:
+        while True:
+            with self._changed:
+                self._changed.wait_for(
+                    lambda: self._queued or self._stopping.is_set(), max(0.0, next_scan - time.monotonic())
+                )
+                if self._stopping.is_set():
+                    return
+                model_id = self._queued[0] if self._queued else None
+            if model_id is None:  # idle until the scan was due
                 self._find_marked()
                 next_scan = time.monotonic() + RESCAN_SECONDS
                 continue
-            if not model_id or self._stopping.is_set():
-                continue
             self._purge(model_id)
             with self._changed:
-                self._queued.discard(model_id)
+                self._queued.remove(model_id)
                 self._changed.notify_all()
 
     def _purge(self, model_id: str) -> None:

@@ -9,6 +9,7 @@ from sqlalchemy import select, update
 from sqlalchemy.orm import Session
 
 from storage.models import ApiKey, Model
+from storage.repositories.models import LIVE
 
 
 def add_api_key(
@@ -70,4 +71,4 @@ def revoked_among(session: Session, key_ids: Collection[str]) -> set[str]:
 
 def existing_model_ids(session: Session, model_ids: Collection[str]) -> set[str]:
     """Which of ``model_ids`` are stored models (a key's scope must name existing models)."""
-    return set(session.scalars(select(Model.id).where(Model.id.in_(list(model_ids)), Model.deleted_at.is_(None))))
+    return set(session.scalars(select(Model.id).where(Model.id.in_(list(model_ids)), LIVE)))

@@ -6,7 +6,7 @@ from collections.abc import Sequence
 from datetime import datetime
 from typing import Any, NamedTuple
 
-from sqlalchemy import delete, func, select, update
+from sqlalchemy import ColumnElement, delete, func, select, update
 from sqlalchemy.orm import Session
 
 from storage.models import IncrementalLdaState, Model, Scene, TokenBatch, TrainingBatch, TrainingObject, utc_now
@@ -14,6 +14,8 @@ from storage.repositories import rowcount
 
 #: The models that live: not deleted (a deleted model's row stays until it is purged, alembic 0012).
 LIVE = Model.deleted_at.is_(None)
+#: The models marked deleted whose rows are still being purged (app/purge.py).
+MARKED = Model.deleted_at.is_not(None)
 #: The tables a purge empties a chunk at a time (the rest of a model is small and goes with its row),
 #: each with the column of its key after ``model_id``, which orders the chunks.
 _PURGED_IN_CHUNKS = ((Scene, Scene.id), (TokenBatch, TokenBatch.version))
@@ -52,7 +54,11 @@ def get_model(session: Session, model_id: str) -> Model | None:
 
 
 def is_live(session: Session, model_id: str) -> bool:
-    return session.execute(select(Model.id).where(Model.id == model_id, LIVE)).first() is not None
+    return _exists(session, model_id, LIVE)
+
+
+def _exists(session: Session, model_id: str, condition: ColumnElement[bool]) -> bool:
+    return session.execute(select(Model.id).where(Model.id == model_id, condition)).first() is not None
 
 
 def find_by_idempotency_key(session: Session, idempotency_key: str) -> tuple[str, bytes | None] | None:
@@ -100,7 +106,7 @@ def delete_model(session: Session, model_id: str) -> None:
 
 def deleted_models(session: Session) -> list[str]:
     """Ids of the deleted models whose rows are still being purged, oldest deletion first."""
-    return list(session.scalars(select(Model.id).where(Model.deleted_at.is_not(None)).order_by(Model.deleted_at)))
+    return list(session.scalars(select(Model.id).where(MARKED).order_by(Model.deleted_at)))
 
 
 def purge_chunk(session: Session, model_id: str, max_rows: int) -> int:
@@ -109,7 +115,7 @@ def purge_chunk(session: Session, model_id: str, max_rows: int) -> int:
     labels, checkpoint: rows bounded by its vocabulary and training set, not its history). Returns
     how many rows of the chunked tables went (0 once the row itself is gone). A live model is never
     touched."""
-    if session.execute(select(Model.id).where(Model.id == model_id, Model.deleted_at.is_not(None))).first() is None:
+    if not _exists(session, model_id, MARKED):
         return 0
     for table, key in _PURGED_IN_CHUNKS:
         first = select(key).where(table.model_id == model_id).order_by(key).limit(max_rows).subquery()
